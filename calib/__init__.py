@@ -1,0 +1,1 @@
+"""calib: geometry and the four calibration stages (no Lightning here)."""

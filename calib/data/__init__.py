@@ -1,0 +1,79 @@
+"""Data model and readers. :func:`open_dataset` detects the layout of a path and reads it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from calib.data.custom import is_custom, read_custom
+from calib.data.kitti_object import is_kitti_object, read_kitti_object
+from calib.data.kitti_odometry import is_kitti_odometry, read_kitti_odometry
+from calib.data.kitti_raw import is_kitti_raw, read_kitti_raw
+from calib.data.rosbag import BagSequence, BagTopics, is_bag
+from calib.data.types import Calibration, Frame, Sequence
+from calib.errors import DataError
+
+__all__ = ["LAYOUTS", "Calibration", "Frame", "Sequence", "detect_layout", "open_dataset"]
+
+LAYOUTS = ("rosbag", "kitti_odometry", "kitti_raw", "kitti_object", "custom")
+_DETECTORS = {
+    "rosbag": is_bag,
+    "kitti_odometry": is_kitti_odometry,
+    "kitti_raw": is_kitti_raw,
+    "kitti_object": is_kitti_object,
+    "custom": is_custom,
+}
+_EXPECTED = (
+    "a KITTI odometry root (sequences/NN) or sequence folder, a KITTI raw drive or date folder, "
+    "a KITTI object split (calib/, image_2/, velodyne/), a custom folder (camera/, lidar/, "
+    "calibration.yaml), or a ROS bag (.bag file or ROS 2 folder)"
+)
+
+
+def detect_layout(path: Path) -> str:
+    """Name of the layout at ``path`` (one of :data:`LAYOUTS`)."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(path, "no such file or folder")
+    for name, detect in _DETECTORS.items():
+        if detect(path):
+            return name
+    raise DataError(path, f"unknown data layout; expected {_EXPECTED}")
+
+
+def open_dataset(
+    path: Path | str,
+    sequence: str | None = None,
+    *,
+    camera: int = 2,
+    strict: bool = True,
+    topics: BagTopics = BagTopics(),
+    max_gap: float = 0.05,
+) -> Sequence:
+    """Open any supported layout as a :class:`Sequence`.
+
+    Args:
+        path: dataset folder or bag.
+        sequence: which sequence (KITTI odometry) or drive (KITTI raw) where the path holds several.
+        camera: KITTI camera index (2 = left colour).
+        strict: raise on the first listed problem (unpaired files, empty or truncated scans);
+            ``info`` passes ``False`` to report them all instead.
+        topics, max_gap: ROS bag topic choice and pairing tolerance in seconds.
+    """
+    path = Path(path)
+    layout = detect_layout(path)
+    if layout == "rosbag":
+        seq: Sequence = BagSequence(path, topics=topics, max_gap=max_gap)
+    elif layout == "kitti_odometry":
+        seq = read_kitti_odometry(path, sequence, camera=camera)
+    elif layout == "kitti_raw":
+        seq = read_kitti_raw(path, sequence, camera=camera)
+    elif layout == "kitti_object":
+        seq = read_kitti_object(path, camera=camera)
+    else:
+        seq = read_custom(path)
+    if strict and seq.problems:
+        path_part, _, problem = seq.problems[0].partition(": ")
+        raise DataError(path_part, problem)
+    if len(seq) == 0:
+        raise DataError(path, "holds no image–scan pairs")
+    return seq

@@ -1,0 +1,129 @@
+"""KITTI raw layout: a drive folder with ``image_0X/data/*.png``, ``velodyne_points/data/*.bin``,
+optional ``timestamps.txt`` in each, and the date's ``calib_cam_to_cam.txt`` and
+``calib_velo_to_cam.txt`` (in the drive folder, its ``calibration/`` subfolder, or the date folder
+above it). A date folder holding ``*_sync`` drives is accepted too; ``sequence`` picks the drive.
+
+Transform: ``calib_velo_to_cam.txt`` gives ``[R | T]`` = LiDAR -> unrectified camera 0;
+``R_rect_00`` rectifies camera 0; ``P_rect_0X`` maps the rectified camera-0 frame into image X.
+So ``T_camX_lidar = T_camX_rect0 · R_rect_00 · [R | T]`` with ``T_camX_rect0`` the offset in
+``P_rect_0X`` and ``K = P_rect_0X[:, :3]``. Camera 2 (left colour) by default; where only one
+camera folder exists (e.g. a grayscale ``image_00`` only) that camera is used and a note says so.
+Without ``timestamps.txt`` frames are assumed at 10 Hz (noted).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from calib.data.io import IMAGE_SUFFIXES, SCAN_SUFFIXES, kv_matrix, read_kv_file
+from calib.data.types import (
+    Calibration,
+    FileSequence,
+    assumed_timestamps,
+    list_files,
+    pair_by_stem,
+    shift_from_projection,
+)
+from calib.errors import DataError
+
+__all__ = ["is_kitti_raw", "read_kitti_raw", "read_kitti_raw_timestamps"]
+
+
+def _is_drive(path: Path) -> bool:
+    return (path / "velodyne_points").is_dir()
+
+
+def is_kitti_raw(path: Path) -> bool:
+    return _is_drive(path) or any(_is_drive(p) for p in path.glob("*_sync"))
+
+
+def _resolve_drive(path: Path, sequence: str | None) -> Path:
+    if _is_drive(path):
+        return path
+    drives = sorted(p for p in path.glob("*_sync") if _is_drive(p))
+    if sequence is not None:
+        chosen = [d for d in drives if d.name == sequence or f"_drive_{sequence}_" in d.name]
+        if len(chosen) != 1:
+            raise DataError(path, f"no drive {sequence!r} (have: {', '.join(d.name for d in drives)})")
+        return chosen[0]
+    if len(drives) != 1:
+        raise DataError(path, f"holds drives {', '.join(d.name for d in drives)}; pick one with --sequence")
+    return drives[0]
+
+
+def _find_calib(drive: Path, name: str) -> Path:
+    for folder in (drive, drive / "calibration", drive.parent):
+        if (folder / name).is_file():
+            return folder / name
+    raise DataError(drive, f"no {name} in the drive folder, its calibration/ or its parent")
+
+
+def read_kitti_raw_timestamps(path: Path) -> np.ndarray:
+    """``timestamps.txt`` lines ``YYYY-MM-DD hh:mm:ss.fffffffff`` -> seconds since the epoch."""
+    lines = [ln.strip() for ln in path.read_text().splitlines() if ln.strip()]
+    try:
+        stamps = np.array([np.datetime64(ln.replace(" ", "T"), "ns") for ln in lines])
+    except ValueError as exc:
+        raise DataError(path, f"time stamps do not parse ({exc})") from None
+    return stamps.astype(np.int64).astype(np.float64) * 1e-9
+
+
+def _choose_camera(drive: Path, camera: int, notes: list[str]) -> int:
+    if (drive / f"image_{camera:02d}" / "data").is_dir():
+        return camera
+    present = sorted(int(p.name[-2:]) for p in drive.glob("image_0[0-3]") if (p / "data").is_dir())
+    if len(present) != 1:
+        raise DataError(drive / f"image_{camera:02d}", f"camera folder not found (have: {present})")
+    notes.append(f"image_{camera:02d} absent; using the only camera, image_{present[0]:02d}")
+    return present[0]
+
+
+def read_kitti_raw(path: Path, sequence: str | None = None, camera: int = 2) -> FileSequence:
+    """Read one KITTI raw drive (see the module docstring for the transform)."""
+    drive = _resolve_drive(Path(path), sequence)
+    notes: list[str] = []
+    camera = _choose_camera(drive, camera, notes)
+    cam_path = _find_calib(drive, "calib_cam_to_cam.txt")
+    velo_path = _find_calib(drive, "calib_velo_to_cam.txt")
+    cam_values, velo_values = read_kv_file(cam_path), read_kv_file(velo_path)
+    K, T_camX_rect0 = shift_from_projection(kv_matrix(cam_values, f"P_rect_{camera:02d}", (3, 4), cam_path))
+    R_rect = np.eye(4)
+    R_rect[:3, :3] = kv_matrix(cam_values, "R_rect_00", (3, 3), cam_path)
+    T_cam0_lidar = np.eye(4)
+    T_cam0_lidar[:3, :3] = kv_matrix(velo_values, "R", (3, 3), velo_path)
+    T_cam0_lidar[:3, 3] = kv_matrix(velo_values, "T", (3, 1), velo_path)[:, 0]
+    size = cam_values.get(f"S_rect_{camera:02d}")
+    image_size = (int(size[1]), int(size[0])) if isinstance(size, np.ndarray) and size.size == 2 else None
+    calibration = Calibration(
+        K=K,
+        T_cam_lidar=T_camX_rect0 @ R_rect @ T_cam0_lidar,
+        image_size=image_size,
+        source=f"{cam_path}, {velo_path}",
+    )
+    image_dir = drive / f"image_{camera:02d}" / "data"
+    scan_dir = drive / "velodyne_points" / "data"
+    if not scan_dir.is_dir():
+        raise DataError(scan_dir, "folder not found")
+    all_images = list_files(image_dir, IMAGE_SUFFIXES)
+    images, scans, problems = pair_by_stem(all_images, list_files(scan_dir, SCAN_SUFFIXES), image_dir, scan_dir)
+    stamp_path = image_dir.parent / "timestamps.txt"
+    if stamp_path.is_file():
+        stamps = read_kitti_raw_timestamps(stamp_path)
+        if len(stamps) != len(all_images):
+            raise DataError(stamp_path, f"holds {len(stamps)} time stamps for {len(all_images)} images")
+        index = {p.stem: i for i, p in enumerate(all_images)}
+        times = stamps[[index[p.stem] for p in images]]
+    else:
+        times = assumed_timestamps(len(images), notes, str(stamp_path))
+    return FileSequence(
+        name=drive.name,
+        layout="kitti_raw",
+        image_paths=images,
+        scan_paths=scans,
+        calibration=calibration,
+        timestamps=times,
+        notes=notes,
+        problems=problems,
+    )

@@ -1,0 +1,266 @@
+"""The data model every stage reads: :class:`Calibration`, :class:`Frame`, :class:`Sequence`."""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Iterator, Sequence as SequenceABC
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calib.data.io import read_image, read_label, read_label_image, read_scan
+from calib.errors import DataError
+
+__all__ = ["Calibration", "FileSequence", "Frame", "Sequence", "shift_from_projection"]
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Intrinsics and extrinsics of one camera–LiDAR pair.
+
+    Attributes:
+        K: ``(3, 3)`` intrinsics of the undistorted (rectified) image.
+        T_cam_lidar: ``(4, 4)`` reference extrinsic, or ``None`` when the data has none.
+        image_size: ``(H, W)`` of the undistorted image, when known without reading an image.
+        distortion: OpenCV distortion coefficients of the *stored* images, or ``None`` when the
+            stored images are already undistorted. Readers undistort on load, keeping ``K``.
+        initial_T_cam_lidar: ``(4, 4)`` initial guess shipped with the data (custom layout's
+            ``initial_extrinsic``), not a reference.
+        source: the file(s) these values were read from.
+    """
+
+    K: np.ndarray
+    T_cam_lidar: np.ndarray | None = None
+    image_size: tuple[int, int] | None = None
+    distortion: np.ndarray | None = None
+    initial_T_cam_lidar: np.ndarray | None = None
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        K = np.asarray(self.K, dtype=np.float64)
+        if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise DataError(self.source or "calibration", f"invalid intrinsics K: {K.tolist()}")
+        object.__setattr__(self, "K", K)
+        for name in ("T_cam_lidar", "initial_T_cam_lidar"):
+            T = getattr(self, name)
+            if T is None:
+                continue
+            T = np.asarray(T, dtype=np.float64)
+            R = T[:3, :3] if T.shape == (4, 4) else None
+            if R is None or not np.isfinite(T).all() or not np.allclose(R @ R.T, np.eye(3), atol=1e-3):
+                raise DataError(self.source or "calibration", f"{name} is not a rigid 4x4 transform")
+            object.__setattr__(self, name, T)
+
+    def with_extrinsic(self, T_cam_lidar: np.ndarray | None) -> Calibration:
+        return replace(self, T_cam_lidar=T_cam_lidar)
+
+
+def shift_from_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Split a rectified 3x4 projection ``P = K [I | t]`` into ``K`` and ``T_camX_rect0``.
+
+    KITTI's ``P_rect_0X`` (and ``P2`` of the odometry/object ``calib.txt``) map points of the
+    rectified camera-0 frame into image X; the offset ``t`` is camera X's position relative to
+    camera 0, so ``T_camX_lidar = T_camX_rect0 · T_rect0_lidar``.
+
+    Returns:
+        ``K (3, 3)`` and ``T_camX_rect0 (4, 4)``.
+    """
+    K = P[:, :3]
+    T = np.eye(4)
+    T[:3, 3] = np.linalg.solve(K, P[:, 3])
+    return K, T
+
+
+@dataclass
+class Frame:
+    """One synchronised image–scan pair.
+
+    Attributes:
+        image: ``(H, W, 3)`` uint8 RGB, undistorted.
+        points: ``(N, 4)`` float32 ``x, y, z, intensity`` in the LiDAR frame.
+        calibration: intrinsics and reference extrinsic valid for this frame.
+        index: position in its sequence.
+        name: file stem or message stamp, for reports.
+        timestamp: camera time in seconds, ``None`` when the format has none.
+        lidar_timestamp: LiDAR time in seconds, when known separately.
+        labels: ``(N,)`` uint16 SemanticKITTI class per point, when present.
+        image_labels: ``(H, W)`` uint16 class per pixel, when present.
+        point_times: ``(N,)`` float64 per-point time offsets in seconds, when present.
+    """
+
+    image: np.ndarray
+    points: np.ndarray
+    calibration: Calibration
+    index: int = 0
+    name: str = ""
+    timestamp: float | None = None
+    lidar_timestamp: float | None = None
+    labels: np.ndarray | None = None
+    image_labels: np.ndarray | None = None
+    point_times: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.calibration.K
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """``(H, W)``."""
+        return int(self.image.shape[0]), int(self.image.shape[1])
+
+
+class Sequence(abc.ABC, SequenceABC):
+    """A random-access list of frames with one calibration (what every stage consumes).
+
+    Attributes:
+        name: dataset and sequence name for reports.
+        layout: which reader made it (``kitti_odometry``, ``kitti_raw``, ...).
+        calibration: the sequence's calibration (the first frame's where frames differ).
+        timestamps: ``(len,)`` camera times in seconds (assumed 10 Hz where the format has none;
+            ``notes`` says so).
+        notes: facts the user should know (assumptions made, a camera substituted).
+        problems: what is wrong with the data (missing pairs, empty or truncated files).
+        poses: ``(len, 4, 4)`` ground-truth poses when the layout ships them, else ``None``.
+    """
+
+    name: str
+    layout: str
+    calibration: Calibration
+    timestamps: np.ndarray
+    notes: list[str]
+    problems: list[str]
+    poses: np.ndarray | None = None
+
+    @abc.abstractmethod
+    def __len__(self) -> int: ...
+
+    @abc.abstractmethod
+    def frame(self, i: int) -> Frame:
+        """Load frame ``i`` (files are read only now)."""
+
+    def __getitem__(self, i: int) -> Frame:  # type: ignore[override]
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"frame {i} out of range for {len(self)} frames")
+        return self.frame(i % len(self))
+
+    def __iter__(self) -> Iterator[Frame]:
+        return (self.frame(i) for i in range(len(self)))
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Release open handles (bags); file layouts hold none."""
+
+    def __enter__(self) -> Sequence:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _listing_problems(paths: list[Path], kind: str) -> list[str]:
+    """Cheap checks without reading: empty files and truncated ``.bin`` scans."""
+    problems = []
+    for path in paths:
+        size = path.stat().st_size
+        if size == 0:
+            problems.append(f"{path}: empty {kind} file")
+        elif kind == "scan" and path.suffix == ".bin" and size % 16:
+            problems.append(f"{path}: truncated scan ({size} bytes, not a multiple of 16)")
+    return problems
+
+
+def pair_by_stem(
+    images: list[Path], scans: list[Path], image_dir: Path, scan_dir: Path
+) -> tuple[list[Path], list[Path], list[str]]:
+    """Pair image and scan files with the same stem; report what is left unpaired."""
+    scans_by_stem = {p.stem: p for p in scans}
+    paired = [(im, scans_by_stem[im.stem]) for im in images if im.stem in scans_by_stem]
+    problems = []
+    if len(paired) != len(images) or len(paired) != len(scans):
+        problems.append(
+            f"{image_dir}: {len(images)} images but {scan_dir}: {len(scans)} scans "
+            f"({len(paired)} pairs with matching names)"
+        )
+    return [a for a, _ in paired], [b for _, b in paired], problems
+
+
+class FileSequence(Sequence):
+    """A sequence of image and scan files (every file-based layout builds one).
+
+    Args:
+        image_paths, scan_paths: paired files, same length.
+        calibration: one for all frames, or ``calibrations`` per frame (KITTI object).
+        timestamps: camera times in seconds.
+        label_paths: optional per-frame SemanticKITTI ``.label`` files (``None`` entries allowed).
+        image_label_paths: optional per-frame class PNGs.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        layout: str,
+        image_paths: list[Path],
+        scan_paths: list[Path],
+        calibration: Calibration,
+        timestamps: np.ndarray,
+        notes: list[str] | None = None,
+        problems: list[str] | None = None,
+        label_paths: list[Path | None] | None = None,
+        image_label_paths: list[Path | None] | None = None,
+        calibrations: list[Calibration] | None = None,
+        poses: np.ndarray | None = None,
+    ):
+        n = len(image_paths)
+        if len(scan_paths) != n or len(timestamps) != n:
+            raise ValueError("image_paths, scan_paths and timestamps must have the same length")
+        self.name, self.layout, self.calibration = name, layout, calibration
+        self.image_paths, self.scan_paths = list(image_paths), list(scan_paths)
+        self.timestamps = np.asarray(timestamps, dtype=np.float64)
+        self.notes = list(notes or [])
+        self.problems = list(problems or [])
+        self.problems += _listing_problems(self.image_paths, "image")
+        self.problems += _listing_problems(self.scan_paths, "scan")
+        self.label_paths = label_paths or [None] * n
+        self.image_label_paths = image_label_paths or [None] * n
+        self.calibrations = calibrations
+        self.poses = poses
+
+    def __len__(self) -> int:
+        return len(self.image_paths)
+
+    def frame(self, i: int) -> Frame:
+        calibration = self.calibrations[i] if self.calibrations else self.calibration
+        image = read_image(self.image_paths[i])
+        if calibration.distortion is not None and np.any(calibration.distortion):
+            image = cv2.undistort(image, calibration.K, calibration.distortion)
+        points = read_scan(self.scan_paths[i])
+        label_path, image_label_path = self.label_paths[i], self.image_label_paths[i]
+        return Frame(
+            image=image,
+            points=points,
+            calibration=calibration,
+            index=i,
+            name=self.image_paths[i].stem,
+            timestamp=float(self.timestamps[i]),
+            labels=read_label(label_path, len(points)) if label_path else None,
+            image_labels=read_label_image(image_label_path) if image_label_path else None,
+        )
+
+
+def list_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
+    """Files in ``folder`` with one of ``suffixes``, sorted by name."""
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes)
+
+
+def optional_paths(folder: Path, stems: list[str], suffix: str) -> list[Path | None] | None:
+    """``folder/<stem><suffix>`` for each stem where it exists; ``None`` when the folder is absent."""
+    if not folder.is_dir():
+        return None
+    return [(folder / f"{s}{suffix}") if (folder / f"{s}{suffix}").is_file() else None for s in stems]
+
+
+def assumed_timestamps(n: int, notes: list[str], what: str, rate_hz: float = 10.0) -> np.ndarray:
+    """Evenly spaced times for a format without time stamps, noting the assumption."""
+    notes.append(f"{what}: no time stamps; {rate_hz:g} Hz assumed")
+    return np.arange(n, dtype=np.float64) / rate_hz

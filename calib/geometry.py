@@ -1,0 +1,195 @@
+"""SE(3) helpers on kornia: compose, inverse, exp/log, calibration error and random perturbations.
+
+Conventions (DESIGN.md): ``T_a_b`` is a ``(..., 4, 4)`` homogeneous transform mapping points from
+frame ``b`` into frame ``a``. A twist ``xi = (rho, omega)`` is ``(..., 6)``, translation part first,
+as in :class:`kornia.geometry.liegroup.Se3`. Every function broadcasts over leading dimensions.
+
+kornia's ``Se3.exp``/``Se3.log`` handle small angles (float64 gradcheck at the identity passes,
+``tests/calib/test_geometry.py`` keeps asserting it), so they are used directly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+from kornia.geometry.liegroup import Se3, So3
+
+__all__ = [
+    "CalibrationError",
+    "calibration_error",
+    "perturb",
+    "pose_error",
+    "random_perturbation",
+    "se3_compose",
+    "se3_exp",
+    "se3_inverse",
+    "se3_log",
+    "so3_log",
+]
+
+
+def _as_tensor(x: np.ndarray | torch.Tensor, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    return x.to(dtype) if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x), dtype=dtype)
+
+
+def _check_transform(T: torch.Tensor, name: str) -> None:
+    if T.shape[-2:] != (4, 4):
+        raise ValueError(f"{name} must have shape (..., 4, 4), got {tuple(T.shape)}")
+
+
+def se3_exp(xi: torch.Tensor) -> torch.Tensor:
+    """Exponential map se(3) -> SE(3).
+
+    Args:
+        xi: twist ``(..., 6)``: translation part ``rho`` then rotation vector ``omega``.
+
+    Returns:
+        ``(..., 4, 4)`` homogeneous transforms.
+    """
+    if xi.shape[-1] != 6:
+        raise ValueError(f"xi must have shape (..., 6), got {tuple(xi.shape)}")
+    return Se3.exp(xi).matrix()
+
+
+def se3_log(T: torch.Tensor) -> torch.Tensor:
+    """Logarithm SE(3) -> se(3), the inverse of :func:`se3_exp`.
+
+    Args:
+        T: ``(..., 4, 4)`` homogeneous transforms with orthonormal rotation blocks.
+
+    Returns:
+        ``(..., 6)`` twists ``(rho, omega)``.
+    """
+    _check_transform(T, "T")
+    return Se3.from_matrix(T).log()
+
+
+def so3_log(R: torch.Tensor) -> torch.Tensor:
+    """Rotation vector of ``(..., 3, 3)`` rotation matrices, ``(..., 3)``, angle in radians."""
+    if R.shape[-2:] != (3, 3):
+        raise ValueError(f"R must have shape (..., 3, 3), got {tuple(R.shape)}")
+    return So3.from_matrix(R).log()
+
+
+def se3_inverse(T_a_b: torch.Tensor) -> torch.Tensor:
+    """Closed-form inverse ``T_b_a`` of ``(..., 4, 4)`` rigid transforms."""
+    _check_transform(T_a_b, "T_a_b")
+    R_t = T_a_b[..., :3, :3].transpose(-1, -2)
+    T_b_a = torch.zeros_like(T_a_b)
+    T_b_a[..., :3, :3] = R_t
+    T_b_a[..., :3, 3] = -(R_t @ T_a_b[..., :3, 3:4])[..., 0]
+    T_b_a[..., 3, 3] = 1.0
+    return T_b_a
+
+
+def se3_compose(T_a_b: torch.Tensor, T_b_c: torch.Tensor) -> torch.Tensor:
+    """``T_a_c = T_a_b · T_b_c``, broadcasting over leading dimensions."""
+    _check_transform(T_a_b, "T_a_b")
+    _check_transform(T_b_c, "T_b_c")
+    return T_a_b @ T_b_c
+
+
+def pose_error(
+    T_est: torch.Tensor, T_ref: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Error of an estimate against a reference, as DESIGN.md (and MDPCalib) define it.
+
+    ``E = T_ref⁻¹ · T_est``; translation error ``‖t(E)‖``; rotation error ``angle(R(E))``.
+
+    Args:
+        T_est: ``(..., 4, 4)`` estimated transforms.
+        T_ref: ``(..., 4, 4)`` reference transforms.
+
+    Returns:
+        ``translation_cm (...)``, ``rotation_deg (...)``, and their per-axis components
+        ``translation_xyz_cm (..., 3)`` (``t(E)``) and ``rotation_xyz_deg (..., 3)`` (the
+        rotation vector of ``R(E)``), both in the reference frame's axes.
+    """
+    _check_transform(T_est, "T_est")
+    _check_transform(T_ref, "T_ref")
+    E = se3_compose(se3_inverse(T_ref), T_est)
+    t_xyz_cm = E[..., :3, 3] * 100.0
+    r_xyz_deg = torch.rad2deg(so3_log(E[..., :3, :3]))
+    return t_xyz_cm.norm(dim=-1), r_xyz_deg.norm(dim=-1), t_xyz_cm, r_xyz_deg
+
+
+@dataclass(frozen=True)
+class CalibrationError:
+    """Error of one extrinsic estimate against a reference (see :func:`pose_error`)."""
+
+    translation_cm: float
+    rotation_deg: float
+    translation_xyz_cm: tuple[float, float, float]
+    rotation_xyz_deg: tuple[float, float, float]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def __str__(self) -> str:
+        return f"{self.translation_cm:.3f} cm / {self.rotation_deg:.4f}°"
+
+
+def calibration_error(
+    T_est: np.ndarray | torch.Tensor, T_ref: np.ndarray | torch.Tensor
+) -> CalibrationError:
+    """:func:`pose_error` of one ``(4, 4)`` estimate, in float64, as plain floats."""
+    t, r, t_xyz, r_xyz = pose_error(_as_tensor(T_est), _as_tensor(T_ref))
+    if t.ndim != 0:
+        raise ValueError(f"calibration_error takes single (4, 4) transforms, got {tuple(t.shape)}")
+    return CalibrationError(
+        float(t), float(r), tuple(t_xyz.tolist()), tuple(r_xyz.tolist())  # type: ignore[arg-type]
+    )
+
+
+def random_perturbation(
+    translation_cm: float,
+    rotation_deg: float,
+    batch_shape: tuple[int, ...] = (),
+    generator: torch.Generator | None = None,
+    dtype: torch.dtype = torch.float64,
+) -> torch.Tensor:
+    """Random rigid transforms of exactly the given size, in uniformly random directions.
+
+    The translation has norm ``translation_cm`` and the rotation angle ``rotation_deg``, about an
+    axis drawn uniformly on the sphere (independent of the translation direction).
+
+    Returns:
+        ``(*batch_shape, 4, 4)`` transforms.
+    """
+    if translation_cm < 0 or rotation_deg < 0:
+        raise ValueError(
+            f"perturbation sizes must be non-negative, got {translation_cm} cm, {rotation_deg} deg"
+        )
+    directions = torch.randn(*batch_shape, 2, 3, generator=generator, dtype=dtype)
+    directions = directions / directions.norm(dim=-1, keepdim=True)
+    rotation = directions[..., 1, :] * math.radians(rotation_deg)
+    translation = directions[..., 0, :] * (translation_cm / 100.0)
+    T = torch.zeros(*batch_shape, 4, 4, dtype=dtype)
+    T[..., :3, :3] = So3.exp(rotation).matrix()
+    T[..., :3, 3] = translation
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def perturb(
+    T_cam_lidar: np.ndarray,
+    translation_cm: float,
+    rotation_deg: float,
+    generator: torch.Generator | None = None,
+) -> np.ndarray:
+    """Perturb an extrinsic so that its :func:`calibration_error` is exactly the given size.
+
+    Returns ``T_cam_lidar · Δ`` with ``Δ`` from :func:`random_perturbation`, so that
+    ``E = T_ref⁻¹ · T_est = Δ``.
+
+    Args:
+        T_cam_lidar: ``(4, 4)`` reference extrinsic.
+
+    Returns:
+        ``(4, 4)`` float64 perturbed extrinsic.
+    """
+    delta = random_perturbation(translation_cm, rotation_deg, generator=generator)
+    return (se3_compose(_as_tensor(T_cam_lidar), delta)).numpy()
