@@ -35,6 +35,12 @@ def _as_tensor(x: np.ndarray | torch.Tensor, dtype: torch.dtype = torch.float64)
     return x.to(dtype) if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x), dtype=dtype)
 
 
+def _grad_like(x: torch.Tensor) -> torch.set_grad_enabled:
+    """kornia's ``So3`` keeps its quaternion as an ``nn.Parameter``, so its outputs require grad
+    even for plain inputs; track gradients only when the input asks for them."""
+    return torch.set_grad_enabled(torch.is_grad_enabled() and x.requires_grad)
+
+
 def _check_transform(T: torch.Tensor, name: str) -> None:
     if T.shape[-2:] != (4, 4):
         raise ValueError(f"{name} must have shape (..., 4, 4), got {tuple(T.shape)}")
@@ -51,7 +57,8 @@ def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     """
     if xi.shape[-1] != 6:
         raise ValueError(f"xi must have shape (..., 6), got {tuple(xi.shape)}")
-    return Se3.exp(xi).matrix()
+    with _grad_like(xi):
+        return Se3.exp(xi).matrix()
 
 
 def se3_log(T: torch.Tensor) -> torch.Tensor:
@@ -64,14 +71,16 @@ def se3_log(T: torch.Tensor) -> torch.Tensor:
         ``(..., 6)`` twists ``(rho, omega)``.
     """
     _check_transform(T, "T")
-    return Se3.from_matrix(T).log()
+    with _grad_like(T):
+        return Se3.from_matrix(T).log()
 
 
 def so3_log(R: torch.Tensor) -> torch.Tensor:
     """Rotation vector of ``(..., 3, 3)`` rotation matrices, ``(..., 3)``, angle in radians."""
     if R.shape[-2:] != (3, 3):
         raise ValueError(f"R must have shape (..., 3, 3), got {tuple(R.shape)}")
-    return So3.from_matrix(R).log()
+    with _grad_like(R):
+        return So3.from_matrix(R).log()
 
 
 def se3_inverse(T_a_b: torch.Tensor) -> torch.Tensor:
@@ -168,7 +177,8 @@ def random_perturbation(
     rotation = directions[..., 1, :] * math.radians(rotation_deg)
     translation = directions[..., 0, :] * (translation_cm / 100.0)
     T = torch.zeros(*batch_shape, 4, 4, dtype=dtype)
-    T[..., :3, :3] = So3.exp(rotation).matrix()
+    with torch.no_grad():
+        T[..., :3, :3] = So3.exp(rotation).matrix()
     T[..., :3, 3] = translation
     T[..., 3, 3] = 1.0
     return T

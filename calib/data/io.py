@@ -16,8 +16,6 @@ import numpy as np
 
 from calib.errors import DataError
 
-cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-
 __all__ = [
     "lzf_decompress",
     "read_image",
@@ -252,7 +250,12 @@ def write_label(path: Path, labels: np.ndarray) -> None:
 def _decode_image(path: Path, flags: int) -> np.ndarray:
     _require_file(path)
     buffer = np.fromfile(path, dtype=np.uint8)
-    image = cv2.imdecode(buffer, flags) if buffer.size else None
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # we raise our own error
+    try:
+        image = cv2.imdecode(buffer, flags) if buffer.size else None
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if image is None:
         raise DataError(path, "image is corrupt or not an image (could not decode)")
     return image

@@ -278,7 +278,7 @@ class BagSequence(Sequence):
         )
 
     def close(self) -> None:
-        if getattr(self, "reader", None) is not None and self.reader.isopen:
+        if getattr(self, "reader", None) is not None and self.reader.stack is not None:
             self.reader.close()
 
 

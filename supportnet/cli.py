@@ -1,0 +1,63 @@
+"""The ``supportnet`` command line (DESIGN.md's CLI contract). Heavy modules are imported inside
+each command so ``supportnet --help`` stays instant."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from calib.errors import SupportnetError
+
+app = typer.Typer(
+    name="supportnet",
+    help="Online LiDAR–camera extrinsic calibration that knows where calibration evidence lives.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace an existing result.")]
+
+
+@app.command()
+def info(
+    data: Annotated[Path, typer.Argument(help="Dataset folder or ROS bag.")],
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive (KITTI raw).")] = None,
+    camera: Annotated[int, typer.Option(help="KITTI camera index (2 = left colour).")] = 2,
+    check_all: Annotated[bool, typer.Option("--check-all", help="Read every frame, not only the first.")] = False,
+) -> None:
+    """What a dataset holds (layout, frames, resolution, intrinsics, extrinsic, time span,
+    label classes) and the problems found. Exit code 2 when there are problems."""
+    from rich.console import Console
+
+    from supportnet.info import info as run_info
+
+    raise typer.Exit(run_info(data, sequence, camera, check_all, Console()))
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option(help="Report folder.")] = Path("demo_out"),
+    overwrite: Overwrite = False,
+) -> None:
+    """The pipeline so far on a small default: reads the real fixtures, checks the conventions by
+    contour alignment, and writes projection overlays and a summary."""
+    from supportnet.demo import run_demo
+
+    run_demo(out, overwrite)
+
+
+def main() -> None:
+    """Console entry point: user mistakes end in one line on stderr and exit code 2."""
+    try:
+        app()
+    except SupportnetError as exc:
+        print(f"supportnet: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

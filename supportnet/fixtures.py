@@ -1,0 +1,88 @@
+"""The real fixtures in ``../shared/realdata`` turned into layouts the readers support.
+
+The data stay where they are (their licence forbids copying them into the project); these
+helpers write small converted copies into a folder the caller owns (a temporary one).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import shutil
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from calib.data.io import read_kv_file
+
+__all__ = [
+    "AMZ_DRIVE",
+    "PJLAB_SCENES",
+    "custom_from_pjlab",
+    "kitti_object_from_mmdet",
+    "realdata_root",
+]
+
+AMZ_DRIVE = "amz_kitti_raw_0928/data/0928-KITTI-dataset"
+MMDET_KITTI = "mmdet3d_demo/demo/data/kitti"
+PJLAB = "sensorscalib_pjlab/lidar2camera/auto_calib_v2.0/data/ours"
+PJLAB_SCENES = ("1", "2", "3")
+
+
+def realdata_root() -> Path | None:
+    """``$SUPPORTNET_REALDATA``, else the first ``../shared/realdata`` above the working
+    directory or this package; ``None`` when absent."""
+    if env := os.environ.get("SUPPORTNET_REALDATA"):
+        return Path(env) if Path(env).is_dir() else None
+    for start in (Path.cwd(), Path(__file__).resolve().parent):
+        for folder in (start, *start.parents):
+            candidate = folder.parent / "shared" / "realdata"
+            if candidate.is_dir():
+                return candidate
+    return None
+
+
+def _kv_line(key: str, M: np.ndarray) -> str:
+    return f"{key}: " + " ".join(f"{v:.12e}" for v in np.asarray(M)[:3].reshape(-1)) + "\n"
+
+
+def kitti_object_from_mmdet(realdata: Path, out: Path) -> Path:
+    """Write mmdet3d's KITTI frame 000008 as a KITTI object split (``calib/000008.txt`` with
+    ``P2``, ``R0_rect``, ``Tr_velo_to_cam`` from its pickle). Returns the split folder."""
+    src = Path(realdata) / MMDET_KITTI
+    with open(src / "000008.pkl", "rb") as handle:
+        info = pickle.load(handle)["data_list"][0]
+    out = Path(out)
+    for sub in ("calib", "image_2", "velodyne"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    cams = info["images"]
+    text = "".join(_kv_line(f"P{i}", np.array(cams[f"CAM{i}"]["cam2img"])) for i in range(4))
+    text += "R0_rect: " + " ".join(f"{v:.12e}" for v in np.array(cams["R0_rect"])[:3, :3].reshape(-1)) + "\n"
+    text += _kv_line("Tr_velo_to_cam", np.array(info["lidar_points"]["Tr_velo_to_cam"]))
+    (out / "calib" / "000008.txt").write_text(text)
+    shutil.copyfile(src / "000008.png", out / "image_2" / "000008.png")
+    shutil.copyfile(src / "000008.bin", out / "velodyne" / "000008.bin")
+    return out
+
+
+def custom_from_pjlab(realdata: Path, scene: str, out: Path) -> Path:
+    """Write one PJLab scene (distorted 1920x1200 image, binary-compressed PCD, ``calib.txt``
+    with K, D and LiDAR->camera T) as a custom folder. Returns the folder."""
+    src = Path(realdata) / PJLAB / scene
+    values = read_kv_file(src / "calib.txt")
+    T = np.eye(4)
+    T[:3, :] = np.asarray(values["T"]).reshape(3, 4)
+    out = Path(out)
+    (out / "camera").mkdir(parents=True, exist_ok=True)
+    (out / "lidar").mkdir(exist_ok=True)
+    image = next(p for p in src.iterdir() if p.suffix in (".png", ".jpg"))
+    shutil.copyfile(image, out / "camera" / f"000000{image.suffix}")
+    shutil.copyfile(src / "calib.pcd", out / "lidar" / "000000.pcd")
+    spec = {
+        "K": np.asarray(values["K"]).reshape(3, 3).tolist(),
+        "distortion": np.asarray(values["D"]).tolist(),
+        "T_cam_lidar": T.tolist(),
+    }
+    (out / "calibration.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
+    return out
