@@ -141,15 +141,16 @@ class CalibrationError:
         return f"{self.translation_cm:.3f} cm / {self.rotation_deg:.4f}°"
 
 
-def calibration_error(
-    T_est: np.ndarray | torch.Tensor, T_ref: np.ndarray | torch.Tensor
-) -> CalibrationError:
+def calibration_error(T_est: np.ndarray | torch.Tensor, T_ref: np.ndarray | torch.Tensor) -> CalibrationError:
     """:func:`pose_error` of one ``(4, 4)`` estimate, in float64, as plain floats."""
     t, r, t_xyz, r_xyz = pose_error(_as_tensor(T_est), _as_tensor(T_ref))
     if t.ndim != 0:
         raise ValueError(f"calibration_error takes single (4, 4) transforms, got {tuple(t.shape)}")
     return CalibrationError(
-        float(t), float(r), tuple(t_xyz.tolist()), tuple(r_xyz.tolist())  # type: ignore[arg-type]
+        float(t),
+        float(r),
+        tuple(t_xyz.tolist()),
+        tuple(r_xyz.tolist()),  # type: ignore[arg-type]
     )
 
 

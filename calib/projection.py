@@ -193,9 +193,7 @@ class ProjectedScan:
 
     def _render(self, values: np.ndarray | None) -> np.ndarray:
         v = None if values is None else torch.as_tensor(values, dtype=torch.float64)
-        img = render_image(
-            torch.as_tensor(self.uv), torch.as_tensor(self.depth), self.image_size, v
-        )
+        img = render_image(torch.as_tensor(self.uv), torch.as_tensor(self.depth), self.image_size, v)
         return img.numpy().astype(np.float32)
 
 

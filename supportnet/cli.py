@@ -25,9 +25,13 @@ Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace an existin
 @app.command()
 def info(
     data: Annotated[Path, typer.Argument(help="Dataset folder or ROS bag.")],
-    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive (KITTI raw).")] = None,
+    sequence: Annotated[
+        str | None, typer.Option(help="Sequence (KITTI odometry) or drive (KITTI raw).")
+    ] = None,
     camera: Annotated[int, typer.Option(help="KITTI camera index (2 = left colour).")] = 2,
-    check_all: Annotated[bool, typer.Option("--check-all", help="Read every frame, not only the first.")] = False,
+    check_all: Annotated[
+        bool, typer.Option("--check-all", help="Read every frame, not only the first.")
+    ] = False,
 ) -> None:
     """What a dataset holds (layout, frames, resolution, intrinsics, extrinsic, time span,
     label classes) and the problems found. Exit code 2 when there are problems."""

@@ -36,6 +36,7 @@ __all__ = ["contour_check", "real_scenes", "run_demo"]
 
 PERTURBATIONS = 8
 
+
 def real_scenes(realdata: Path, workdir: Path) -> list[tuple[str, Frame, np.ndarray | None]]:
     """Every real fixture frame as ``(name, frame, ring or None)``, read through the readers."""
     scenes = []
@@ -48,6 +49,7 @@ def real_scenes(realdata: Path, workdir: Path) -> list[tuple[str, Frame, np.ndar
             ring = read_pcd_fields(seq.scan_paths[0])[0]["ring"].astype(np.int64)
             scenes.append((f"pjlab {scene}", seq[0], ring))
     return scenes
+
 
 def contour_check(frame: Frame, ring: np.ndarray | None, seed: int = 0) -> dict:
     """Contour alignment under the reference and under ``PERTURBATIONS`` seeded 1° rotations."""
@@ -67,7 +69,9 @@ def contour_check(frame: Frame, ring: np.ndarray | None, seed: int = 0) -> dict:
         "ratio": reference / float(np.mean(perturbed)),
     }
 
+
 ContourCheck = dict
+
 
 def run_demo(out: Path, overwrite: bool = False) -> None:
     console = Console()
@@ -83,18 +87,33 @@ def run_demo(out: Path, overwrite: bool = False) -> None:
         for name, frame, ring in track(scenes, description="checking conventions", console=console):
             check = contour_check(frame, ring)
             results[name] = check
-            table.add_row(name, str(check["contour_points"]), f"{check['reference']:.3f}",
-                          f"{check['perturbed_mean']:.3f}", f"{check['ratio']:.2f}")
+            table.add_row(
+                name,
+                str(check["contour_points"]),
+                f"{check['reference']:.3f}",
+                f"{check['perturbed_mean']:.3f}",
+                f"{check['ratio']:.2f}",
+            )
             T = frame.calibration.T_cam_lidar
             slug = name.replace(" ", "_")
-            for label, T_used in (("reference", T), ("perturbed_1deg", perturb(T, 0.0, 1.0, torch.Generator().manual_seed(1)))):
+            for label, T_used in (
+                ("reference", T),
+                ("perturbed_1deg", perturb(T, 0.0, 1.0, torch.Generator().manual_seed(1))),
+            ):
                 projected = project_scan(frame.points, T_used, frame.K, frame.image_size)
                 write_image(tmp / f"overlay_{slug}_{label}.png", draw_projection(frame.image, projected))
         console.print(table)
         write_json(tmp / "contour_alignment.json", results)
-        lines = ["# supportnet demo", "", "| scene | contour points | reference | perturbed mean | ratio |",
-                 "|---|---|---|---|---|"]
-        lines += [f"| {n} | {r['contour_points']} | {r['reference']:.3f} | {r['perturbed_mean']:.3f} | {r['ratio']:.2f} |"
-                  for n, r in results.items()]
+        lines = [
+            "# supportnet demo",
+            "",
+            "| scene | contour points | reference | perturbed mean | ratio |",
+            "|---|---|---|---|---|",
+        ]
+        lines += [
+            f"| {n} | {r['contour_points']} | {r['reference']:.3f} | "
+            f"{r['perturbed_mean']:.3f} | {r['ratio']:.2f} |"
+            for n, r in results.items()
+        ]
         (tmp / "summary.md").write_text("\n".join(lines) + "\n")
     console.print(f"report written to [bold]{out}[/]")

@@ -51,7 +51,9 @@ def describe(seq: Sequence, check_all: bool = False) -> dict:
         "K": K,
         "T_cam_lidar": seq.calibration.T_cam_lidar,
         "time_span": (float(times[0]), float(times[-1])) if len(times) else None,
-        "rate_hz": float((len(times) - 1) / (times[-1] - times[0])) if len(times) > 1 and times[-1] > times[0] else None,
+        "rate_hz": float((len(times) - 1) / (times[-1] - times[0]))
+        if len(times) > 1 and times[-1] > times[0]
+        else None,
         "label_classes": sorted(labels),
         "image_labels": image_labels,
         "poses": seq.poses is not None,
@@ -77,7 +79,10 @@ def info(path: Path, sequence: str | None, camera: int, check_all: bool, console
     table.add_row("sequence", facts["name"])
     table.add_row("frames", str(facts["frames"]))
     table.add_row("image", f"{size[1]} x {size[0]} (W x H)" if size else "unknown")
-    table.add_row("points", f"{facts['points_first_frame']} in the first scan" if facts["points_first_frame"] else "unknown")
+    table.add_row(
+        "points",
+        f"{facts['points_first_frame']} in the first scan" if facts["points_first_frame"] else "unknown",
+    )
     table.add_row("intrinsics", f"fx {K[0, 0]:.3f}  fy {K[1, 1]:.3f}  cx {K[0, 2]:.3f}  cy {K[1, 2]:.3f}")
     table.add_row("T_cam_lidar", _extrinsic_summary(facts["T_cam_lidar"]))
     if facts["time_span"]:
@@ -97,5 +102,8 @@ def info(path: Path, sequence: str | None, camera: int, check_all: bool, console
             console.print(f"  - {problem}", soft_wrap=True)
         path_part, _, problem = facts["problems"][0].partition(": ")
         raise DataError(path_part, problem)
-    console.print("[green]no problems found[/]" + ("" if check_all else " (first frame read; --check-all reads every frame)"))
+    console.print(
+        "[green]no problems found[/]"
+        + ("" if check_all else " (first frame read; --check-all reads every frame)")
+    )
     return 0

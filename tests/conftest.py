@@ -25,19 +25,25 @@ def make_frames(n: int = 3, seed: int = 0, size: tuple[int, int] = (188, 624)) -
     calibration = Calibration(K=KITTI_K, T_cam_lidar=kitti_like_extrinsic(), image_size=size)
     frames = []
     for i in range(n):
-        points = np.column_stack([
-            rng.uniform(2, 30, 500), rng.uniform(-10, 10, 500), rng.uniform(-1.5, 2, 500),
-            rng.uniform(0, 1, 500),
-        ]).astype(np.float32)
-        frames.append(Frame(
-            image=rng.integers(0, 255, (*size, 3), dtype=np.uint8),
-            points=points,
-            calibration=calibration,
-            index=i,
-            timestamp=100.0 + 0.1 * i,
-            labels=rng.choice([10, 40, 50, 70, 80], 500).astype(np.uint16),
-            image_labels=rng.choice([10, 40, 50, 70, 80], size).astype(np.uint16),
-        ))
+        points = np.column_stack(
+            [
+                rng.uniform(2, 30, 500),
+                rng.uniform(-10, 10, 500),
+                rng.uniform(-1.5, 2, 500),
+                rng.uniform(0, 1, 500),
+            ]
+        ).astype(np.float32)
+        frames.append(
+            Frame(
+                image=rng.integers(0, 255, (*size, 3), dtype=np.uint8),
+                points=points,
+                calibration=calibration,
+                index=i,
+                timestamp=100.0 + 0.1 * i,
+                labels=rng.choice([10, 40, 50, 70, 80], 500).astype(np.uint16),
+                image_labels=rng.choice([10, 40, 50, 70, 80], size).astype(np.uint16),
+            )
+        )
     return frames
 
 

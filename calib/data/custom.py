@@ -68,7 +68,9 @@ class CalibrationFile(BaseModel):
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)
 
 
-def _matrix(rows: list[list[float]] | None, shape: tuple[int, int], what: str, path: Path) -> np.ndarray | None:
+def _matrix(
+    rows: list[list[float]] | None, shape: tuple[int, int], what: str, path: Path
+) -> np.ndarray | None:
     if rows is None:
         return None
     M = np.asarray(rows, dtype=np.float64)

@@ -110,8 +110,18 @@ def lzf_decompress(data: bytes, expected_size: int) -> bytes:
     return bytes(out)
 
 
-_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4",
-              ("U", 8): "u8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8"}
+_PCD_TYPES = {
+    ("F", 4): "f4",
+    ("F", 8): "f8",
+    ("U", 1): "u1",
+    ("U", 2): "u2",
+    ("U", 4): "u4",
+    ("U", 8): "u8",
+    ("I", 1): "i1",
+    ("I", 2): "i2",
+    ("I", 4): "i4",
+    ("I", 8): "i8",
+}
 
 
 def _pcd_header(raw: bytes, path: Path) -> tuple[dict[str, list[str]], int]:
@@ -149,8 +159,12 @@ def read_pcd_fields(path: Path) -> tuple[dict[str, np.ndarray], int]:
         n = int(header["POINTS"][0])
         height = int(header.get("HEIGHT", ["1"])[0])
         kind = header["DATA"][0].lower()
-        dtype = np.dtype([(f, _PCD_TYPES[(t.upper(), s)], (c,) if c > 1 else ())
-                          for f, s, t, c in zip(fields, sizes, types, counts, strict=True)])
+        dtype = np.dtype(
+            [
+                (f, _PCD_TYPES[(t.upper(), s)], (c,) if c > 1 else ())
+                for f, s, t, c in zip(fields, sizes, types, counts, strict=True)
+            ]
+        )
     except (KeyError, ValueError, IndexError) as exc:
         raise DataError(path, f"PCD header does not parse ({exc})") from None
     body = raw[offset:]
@@ -326,7 +340,9 @@ def kv_matrix(values: dict, key: str, shape: tuple[int, int], path: Path) -> np.
     array = values[key]
     size = shape[0] * shape[1]
     if isinstance(array, str) or array.size != size:
-        raise DataError(path, f"{key!r} must hold {size} numbers, got {array if isinstance(array, str) else array.size}")
+        raise DataError(
+            path, f"{key!r} must hold {size} numbers, got {array if isinstance(array, str) else array.size}"
+        )
     return array.reshape(shape)
 
 

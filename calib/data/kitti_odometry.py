@@ -28,8 +28,8 @@ from calib.data.io import (
 from calib.data.types import (
     Calibration,
     FileSequence,
-    assumed_timestamps,
     Frame,
+    assumed_timestamps,
     list_files,
     optional_paths,
     pair_by_stem,
@@ -41,9 +41,7 @@ __all__ = ["is_kitti_odometry", "read_kitti_odometry", "write_kitti_odometry", "
 
 
 def is_kitti_odometry(path: Path) -> bool:
-    return (path / "sequences").is_dir() or (
-        (path / "calib.txt").is_file() and (path / "velodyne").is_dir()
-    )
+    return (path / "sequences").is_dir() or ((path / "calib.txt").is_file() and (path / "velodyne").is_dir())
 
 
 def sequence_names(root: Path) -> list[str]:
@@ -56,7 +54,9 @@ def _resolve(path: Path, sequence: str | None) -> tuple[Path, Path, str]:
         names = sequence_names(path)
         if sequence is None:
             if len(names) != 1:
-                raise DataError(path, f"holds sequences {', '.join(names) or 'none'}; pick one with --sequence")
+                raise DataError(
+                    path, f"holds sequences {', '.join(names) or 'none'}; pick one with --sequence"
+                )
             sequence = names[0]
         if sequence not in names:
             raise DataError(path / "sequences" / sequence, f"no such sequence (have: {', '.join(names)})")

@@ -107,7 +107,9 @@ def read_kitti_raw(path: Path, sequence: str | None = None, camera: int = 2) -> 
     if not scan_dir.is_dir():
         raise DataError(scan_dir, "folder not found")
     all_images = list_files(image_dir, IMAGE_SUFFIXES)
-    images, scans, problems = pair_by_stem(all_images, list_files(scan_dir, SCAN_SUFFIXES), image_dir, scan_dir)
+    images, scans, problems = pair_by_stem(
+        all_images, list_files(scan_dir, SCAN_SUFFIXES), image_dir, scan_dir
+    )
     stamp_path = image_dir.parent / "timestamps.txt"
     if stamp_path.is_file():
         stamps = read_kitti_raw_timestamps(stamp_path)

@@ -71,8 +71,16 @@ def decode_image(msg: object, msgtype: str, where: str) -> np.ndarray:
     enc = msg.encoding.lower()  # type: ignore[attr-defined]
     h, w, step = msg.height, msg.width, msg.step  # type: ignore[attr-defined]
     depth = {"mono16": 2, "16uc1": 2}.get(enc, 1)
-    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "8uc1": 1,
-                "mono16": 1, "16uc1": 1}.get(enc)
+    channels = {
+        "rgb8": 3,
+        "bgr8": 3,
+        "rgba8": 4,
+        "bgra8": 4,
+        "mono8": 1,
+        "8uc1": 1,
+        "mono16": 1,
+        "16uc1": 1,
+    }.get(enc)
     if channels is None:
         raise DataError(where, f"unsupported image encoding {enc!r}")
     raw = np.asarray(msg.data, dtype=np.uint8).reshape(h, step)[:, : w * channels * depth]  # type: ignore[attr-defined]
@@ -96,12 +104,14 @@ def decode_cloud(msg: object, where: str) -> tuple[np.ndarray, np.ndarray | None
         raise DataError(where, f"PointCloud2 has no x, y, z fields (has {', '.join(fields)})")
     order = ">" if msg.is_bigendian else "<"  # type: ignore[attr-defined]
     names = [n for n in fields if fields[n].datatype in _POINTFIELD_DTYPES]
-    dtype = np.dtype({
-        "names": names,
-        "formats": [order + _POINTFIELD_DTYPES[fields[n].datatype] for n in names],
-        "offsets": [fields[n].offset for n in names],
-        "itemsize": msg.point_step,  # type: ignore[attr-defined]
-    })
+    dtype = np.dtype(
+        {
+            "names": names,
+            "formats": [order + _POINTFIELD_DTYPES[fields[n].datatype] for n in names],
+            "offsets": [fields[n].offset for n in names],
+            "itemsize": msg.point_step,  # type: ignore[attr-defined]
+        }
+    )
     n = msg.height * msg.width  # type: ignore[attr-defined]
     cloud = np.frombuffer(np.asarray(msg.data, dtype=np.uint8).tobytes(), dtype=dtype, count=n)  # type: ignore[attr-defined]
     intensity = next((f for f in ("intensity", "reflectivity", "i") if f in names), None)
@@ -194,11 +204,14 @@ class BagSequence(Sequence):
         if T_cam_lidar is None:
             first_cloud = self._first(self._cloud)
             T_cam_lidar = lookup_T_cam_lidar(
-                _tf_tree(self.reader), info.header.frame_id.lstrip("/"),
+                _tf_tree(self.reader),
+                info.header.frame_id.lstrip("/"),
                 first_cloud.header.frame_id.lstrip("/"),
             )
             if T_cam_lidar is None:
-                self.notes.append("no /tf_static chain from the LiDAR to the camera frame: no reference extrinsic")
+                self.notes.append(
+                    "no /tf_static chain from the LiDAR to the camera frame: no reference extrinsic"
+                )
         self.calibration = self._calibration(info, T_cam_lidar)
 
     def _pick(self, topic: str | None, msgtypes: tuple[str, ...], what: str, near: str = ""):
@@ -214,7 +227,9 @@ class BagSequence(Sequence):
             namespace = near.rsplit("/", 1)[0]
             topics = [t for t in topics if t.startswith(namespace)] or topics
         if len(topics) != 1:
-            raise DataError(self.path, f"found {len(topics)} {what} topics ({', '.join(topics) or 'none'}); choose one")
+            raise DataError(
+                self.path, f"found {len(topics)} {what} topics ({', '.join(topics) or 'none'}); choose one"
+            )
         return next(c for c in connections if c.topic == topics[0])
 
     def _first(self, connection):
@@ -269,12 +284,18 @@ class BagSequence(Sequence):
         image = decode_image(self._message(self._image, self._image_times_ns[i]), self._image.msgtype, where)
         if self.calibration.distortion is not None:
             image = cv2.undistort(image, self.calibration.K, self.calibration.distortion)
-        points, times = decode_cloud(self._message(self._cloud, self._cloud_times_ns[i]),
-                                     f"{self.path} [{self._cloud.topic} #{i}]")
+        points, times = decode_cloud(
+            self._message(self._cloud, self._cloud_times_ns[i]), f"{self.path} [{self._cloud.topic} #{i}]"
+        )
         return Frame(
-            image=image, points=points, calibration=self.calibration, index=i,
-            name=f"{self.timestamps[i]:.6f}", timestamp=float(self.timestamps[i]),
-            lidar_timestamp=float(self._lidar_times[i]), point_times=times,
+            image=image,
+            points=points,
+            calibration=self.calibration,
+            index=i,
+            name=f"{self.timestamps[i]:.6f}",
+            timestamp=float(self.timestamps[i]),
+            lidar_timestamp=float(self._lidar_times[i]),
+            point_times=times,
         )
 
     def close(self) -> None:
@@ -335,38 +356,67 @@ def write_bag(
             T_lidar_cam = np.linalg.inv(calibration.T_cam_lidar)
             x, y, z, w = Rotation.from_matrix(T_lidar_cam[:3, :3]).as_quat()
             tf = types["geometry_msgs/msg/TransformStamped"](
-                header=header(t0, lidar_frame), child_frame_id=camera_frame,
+                header=header(t0, lidar_frame),
+                child_frame_id=camera_frame,
                 transform=types["geometry_msgs/msg/Transform"](
                     translation=types["geometry_msgs/msg/Vector3"](*T_lidar_cam[:3, 3]),
-                    rotation=types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)))
+                    rotation=types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
+                ),
+            )
             conn = writer.add_connection("/tf_static", TF_TYPE, typestore=store)
             writer.write(conn, int(t0 * 1e9), serialize(types[TF_TYPE](transforms=[tf]), TF_TYPE))
         Field = types["sensor_msgs/msg/PointField"]
-        fields = [Field(name=n, offset=4 * k, datatype=7, count=1) for k, n in enumerate("x y z intensity".split())]
+        fields = [
+            Field(name=n, offset=4 * k, datatype=7, count=1) for k, n in enumerate("x y z intensity".split())
+        ]
         for i, frame in enumerate(frames):
             t = frame.timestamp if frame.timestamp is not None else t0 + i / 10.0
             t_lidar = frame.lidar_timestamp if frame.lidar_timestamp is not None else t
             H, W = frame.image_size
             if compressed:
                 ok, jpg = cv2.imencode(".jpg", cv2.cvtColor(frame.image, cv2.COLOR_RGB2BGR))
-                image_msg = types[image_type](header=header(t, camera_frame), format="jpeg",
-                                              data=np.frombuffer(jpg.tobytes(), np.uint8))
+                image_msg = types[image_type](
+                    header=header(t, camera_frame), format="jpeg", data=np.frombuffer(jpg.tobytes(), np.uint8)
+                )
             else:
-                image_msg = types[image_type](header=header(t, camera_frame), height=H, width=W,
-                                              encoding="rgb8", is_bigendian=0, step=3 * W,
-                                              data=frame.image.reshape(-1).copy())
+                image_msg = types[image_type](
+                    header=header(t, camera_frame),
+                    height=H,
+                    width=W,
+                    encoding="rgb8",
+                    is_bigendian=0,
+                    step=3 * W,
+                    data=frame.image.reshape(-1).copy(),
+                )
             info = types[INFO_TYPE](
-                header=header(t, camera_frame), height=H, width=W, distortion_model="plumb_bob",
-                **{case("D"): np.zeros(5), case("K"): calibration.K.reshape(-1),
-                   case("R"): np.eye(3).reshape(-1),
-                   case("P"): np.hstack([calibration.K, np.zeros((3, 1))]).reshape(-1)},
-                binning_x=0, binning_y=0,
-                roi=types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+                header=header(t, camera_frame),
+                height=H,
+                width=W,
+                distortion_model="plumb_bob",
+                **{
+                    case("D"): np.zeros(5),
+                    case("K"): calibration.K.reshape(-1),
+                    case("R"): np.eye(3).reshape(-1),
+                    case("P"): np.hstack([calibration.K, np.zeros((3, 1))]).reshape(-1),
+                },
+                binning_x=0,
+                binning_y=0,
+                roi=types["sensor_msgs/msg/RegionOfInterest"](
+                    x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+                ),
+            )
             pts = np.ascontiguousarray(frame.points[:, :4], dtype=np.float32)
             cloud = types[CLOUD_TYPE](
-                header=header(t_lidar, lidar_frame), height=1, width=len(pts), fields=fields,
-                is_bigendian=False, point_step=16, row_step=16 * len(pts),
-                data=np.frombuffer(pts.tobytes(), np.uint8), is_dense=True)
+                header=header(t_lidar, lidar_frame),
+                height=1,
+                width=len(pts),
+                fields=fields,
+                is_bigendian=False,
+                point_step=16,
+                row_step=16 * len(pts),
+                data=np.frombuffer(pts.tobytes(), np.uint8),
+                is_dense=True,
+            )
             writer.write(conns["image"], int(t * 1e9), serialize(image_msg, image_type))
             writer.write(conns["info"], int(t * 1e9), serialize(info, INFO_TYPE))
             writer.write(conns["cloud"], int(t_lidar * 1e9), serialize(cloud, CLOUD_TYPE))

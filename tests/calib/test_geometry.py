@@ -19,7 +19,9 @@ from calib.geometry import (
 )
 
 twists = st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6).map(
-    lambda v: torch.tensor(v, dtype=torch.float64) * torch.tensor([5, 5, 5, 3.0, 3.0, 3.0], dtype=torch.float64)
+    lambda v: (
+        torch.tensor(v, dtype=torch.float64) * torch.tensor([5, 5, 5, 3.0, 3.0, 3.0], dtype=torch.float64)
+    )
 )
 
 
@@ -61,7 +63,9 @@ def test_exp_log_exp_round_trip_on_matrices(xi):
 def test_gradients_finite_and_correct_near_identity(scale):
     """kornia's Se3 has no explicit small-angle branch in older releases; this asserts that the
     version we depend on gives finite, finite-difference-consistent gradients at the identity."""
-    xi = (torch.randn(6, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * scale).requires_grad_()
+    xi = (
+        torch.randn(6, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * scale
+    ).requires_grad_()
     J = torch.autograd.functional.jacobian(se3_exp, xi)
     assert torch.isfinite(J).all()
     assert torch.autograd.gradcheck(se3_exp, (xi,))
@@ -107,7 +111,9 @@ def test_pose_error_known_answer_uses_ref_inverse_times_est():
 def test_calibration_error_rotation_and_dict():
     T_ref = np.eye(4)
     T_est = np.eye(4)
-    T_est[:3, :3] = se3_exp(torch.tensor([0, 0, 0, 0, 0, math.radians(2.0)], dtype=torch.float64))[:3, :3].numpy()
+    T_est[:3, :3] = se3_exp(torch.tensor([0, 0, 0, 0, 0, math.radians(2.0)], dtype=torch.float64))[
+        :3, :3
+    ].numpy()
     err = calibration_error(T_est, T_ref)
     assert err.rotation_deg == pytest.approx(2.0)
     assert err.rotation_xyz_deg[2] == pytest.approx(2.0)

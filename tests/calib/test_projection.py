@@ -61,8 +61,10 @@ def test_zbuffer_removes_points_behind_a_nearer_surface_only():
     uv, depth = project_points(torch.as_tensor(pts), K)
     visible = zbuffer_visibility(uv, depth, (480, 640)).numpy()
     wall_visible = visible[: len(wall)]
-    behind_plate = (np.abs(wall[:, 0]) < 0.2 * 2.5) & (np.abs(wall[:, 1]) < 0.2 * 2.5)  # well inside the plate's shadow
-    assert visible[len(wall):].all(), "the nearer plate must stay visible"
+    behind_plate = (np.abs(wall[:, 0]) < 0.2 * 2.5) & (
+        np.abs(wall[:, 1]) < 0.2 * 2.5
+    )  # well inside the plate's shadow
+    assert visible[len(wall) :].all(), "the nearer plate must stay visible"
     assert not wall_visible[behind_plate].any(), "wall points behind the plate must be hidden"
     far_from_plate = (np.abs(wall[:, 0]) > 2.0) | (np.abs(wall[:, 1]) > 2.0)
     assert wall_visible[far_from_plate].all()

@@ -22,7 +22,7 @@ from calib.data.kitti_odometry import write_kitti_odometry
 from calib.data.rosbag import BagTopics, write_bag
 from calib.errors import DataError
 from calib.geometry import perturb
-from tests.conftest import KITTI_K, kitti_like_extrinsic, make_frames
+from tests.conftest import KITTI_K, kitti_like_extrinsic
 
 
 def _assert_same_frames(seq, frames, image_exact=True):
@@ -112,15 +112,22 @@ def _write_kitti_raw(root: Path, frames, camera=2, timestamps=True) -> tuple[Pat
     T_velo = kitti_like_extrinsic()
     P = np.hstack([KITTI_K, np.array([[44.857], [0.216], [0.0027]])])
     lines = {
-        "R_rect_00": R_rect, f"P_rect_0{camera}": P, f"S_rect_0{camera}": np.array([624.0, 188.0]),
+        "R_rect_00": R_rect,
+        f"P_rect_0{camera}": P,
+        f"S_rect_0{camera}": np.array([624.0, 188.0]),
     }
     date.mkdir(parents=True)
     (date / "calib_cam_to_cam.txt").write_text(
         "calib_time: 09-Jan-2012 13:57:47\n"
-        + "".join(f"{k}: " + " ".join(f"{v:.12e}" for v in np.ravel(m)) + "\n" for k, m in lines.items()))
+        + "".join(f"{k}: " + " ".join(f"{v:.12e}" for v in np.ravel(m)) + "\n" for k, m in lines.items())
+    )
     (date / "calib_velo_to_cam.txt").write_text(
-        "calib_time: 15-Mar-2012 11:37:16\nR: " + " ".join(f"{v:.12e}" for v in T_velo[:3, :3].ravel())
-        + "\nT: " + " ".join(f"{v:.12e}" for v in T_velo[:3, 3]) + "\n")
+        "calib_time: 15-Mar-2012 11:37:16\nR: "
+        + " ".join(f"{v:.12e}" for v in T_velo[:3, :3].ravel())
+        + "\nT: "
+        + " ".join(f"{v:.12e}" for v in T_velo[:3, 3])
+        + "\n"
+    )
     img_dir, scan_dir = drive / f"image_0{camera}" / "data", drive / "velodyne_points" / "data"
     img_dir.mkdir(parents=True)
     scan_dir.mkdir(parents=True)
@@ -129,7 +136,8 @@ def _write_kitti_raw(root: Path, frames, camera=2, timestamps=True) -> tuple[Pat
         write_bin(scan_dir / f"{i:010d}.bin", f.points)
     if timestamps:
         (img_dir.parent / "timestamps.txt").write_text(
-            "".join(f"2011-09-26 13:02:25.{100000000 * (i + 1):09d}\n" for i in range(len(frames))))
+            "".join(f"2011-09-26 13:02:25.{100000000 * (i + 1):09d}\n" for i in range(len(frames)))
+        )
     return date, {"P": P, "R_rect": R_rect, "T_velo": T_velo}
 
 
@@ -185,8 +193,10 @@ def test_pcd_binary_and_ascii_round_trip(tmp_path, frames):
     pts = frames[0].points
     write_pcd(tmp_path / "a.pcd", pts)
     np.testing.assert_array_equal(read_scan(tmp_path / "a.pcd"), pts)
-    header = ("VERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
-              f"WIDTH {len(pts)}\nHEIGHT 1\nPOINTS {len(pts)}\nDATA ascii\n")
+    header = (
+        "VERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+        f"WIDTH {len(pts)}\nHEIGHT 1\nPOINTS {len(pts)}\nDATA ascii\n"
+    )
     body = "".join(" ".join(f"{v:.9g}" for v in row) + "\n" for row in pts)
     (tmp_path / "b.pcd").write_text(header + body)
     np.testing.assert_allclose(read_pcd(tmp_path / "b.pcd"), pts, rtol=1e-6)
@@ -210,6 +220,7 @@ def test_semantickitti_label_reading(tmp_path):
 
 # ---------------------------------------------------------------- bad input, every reader
 
+
 def _kitti_odometry(tmp, frames):
     write_kitti_odometry(tmp, "00", frames)
     d = tmp / "sequences" / "00"
@@ -224,7 +235,12 @@ def _custom(tmp, frames):
 def _kitti_raw(tmp, frames):
     date, _ = _write_kitti_raw(tmp, frames)
     drive = date / "2011_09_26_drive_0001_sync"
-    return date, drive / "velodyne_points" / "data", drive / "image_02" / "data", date / "calib_velo_to_cam.txt"
+    return (
+        date,
+        drive / "velodyne_points" / "data",
+        drive / "image_02" / "data",
+        date / "calib_velo_to_cam.txt",
+    )
 
 
 def _bag(tmp, frames):
@@ -245,8 +261,7 @@ def layout(request, tmp_path, frames):
 
 def _expect_error(root, match, path):
     with pytest.raises(DataError, match=match) as info:
-        seq = open_dataset(root)
-        for f in seq:
+        for _ in open_dataset(root):  # reading every frame surfaces per-file errors
             pass
     assert str(path) in str(info.value), f"message must name {path}: {info.value}"
     assert "\n" not in str(info.value)

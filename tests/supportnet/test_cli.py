@@ -14,8 +14,14 @@ from tests.conftest import make_frames
 
 def run_cli(*args, cwd=None):
     env = dict(os.environ, COLUMNS="200")
-    return subprocess.run([sys.executable, "-m", "supportnet", *map(str, args)], capture_output=True,
-                          text=True, env=env, cwd=cwd, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "supportnet", *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=cwd,
+        timeout=120,
+    )
 
 
 def test_help_is_fast_and_lists_commands():
@@ -36,8 +42,18 @@ def test_info_on_kitti_odometry(tmp_path):
     write_kitti_odometry(tmp_path, "03", make_frames())
     result = run_cli("info", tmp_path)
     assert result.returncode == 0, result.stderr
-    for expected in ("kitti_odometry", "frames", "624 x 188", "fx 360.000", "T_cam_lidar",
-                     "0.200 s", "10 car", "70 vegetation", "image labels  yes", "no problems found"):
+    for expected in (
+        "kitti_odometry",
+        "frames",
+        "624 x 188",
+        "fx 360.000",
+        "T_cam_lidar",
+        "0.200 s",
+        "10 car",
+        "70 vegetation",
+        "image labels  yes",
+        "no problems found",
+    ):
         assert expected in result.stdout, expected
 
 
