@@ -26,10 +26,10 @@ from calib.data.types import (
     Calibration,
     FileSequence,
     Frame,
-    assumed_timestamps,
     list_files,
     optional_paths,
     pair_by_stem,
+    paired_timestamps,
 )
 from calib.errors import DataError
 
@@ -121,18 +121,7 @@ def read_custom(path: Path) -> FileSequence:
     if not images and len(all_images) == len(all_scans) and all_images:
         images, scans, problems = all_images, all_scans, []
         notes.append("image and scan names differ; paired in sorted order")
-    times_path = path / "timestamps.txt"
-    if times_path.is_file():  # one line per image file, in sorted order
-        try:
-            times_all = np.loadtxt(times_path, dtype=np.float64, ndmin=1)
-        except ValueError as exc:
-            raise DataError(times_path, f"time stamps do not parse ({exc})") from None
-        if len(times_all) != len(all_images):
-            raise DataError(times_path, f"holds {len(times_all)} time stamps for {len(all_images)} images")
-        index = {p: i for i, p in enumerate(all_images)}
-        times = times_all[[index[p] for p in images]]
-    else:
-        times = assumed_timestamps(len(images), notes, str(times_path))
+    times = paired_timestamps(path / "timestamps.txt", all_images, images, notes)
     return FileSequence(
         name=path.name,
         layout="custom",

@@ -29,10 +29,10 @@ from calib.data.types import (
     Calibration,
     FileSequence,
     Frame,
-    assumed_timestamps,
     list_files,
     optional_paths,
     pair_by_stem,
+    paired_timestamps,
     shift_from_projection,
 )
 from calib.errors import DataError
@@ -64,16 +64,6 @@ def _resolve(path: Path, sequence: str | None) -> tuple[Path, Path, str]:
     return path.parent.parent, path, path.name
 
 
-def _read_times(path: Path, n: int) -> np.ndarray:
-    try:
-        times = np.loadtxt(path, dtype=np.float64, ndmin=1)
-    except ValueError as exc:
-        raise DataError(path, f"times do not parse ({exc})") from None
-    if times.shape != (n,):
-        raise DataError(path, f"holds {times.size} time stamps for {n} frames")
-    return times
-
-
 def _read_poses(path: Path, n: int, Tr: np.ndarray) -> np.ndarray:
     try:
         rows = np.loadtxt(path, dtype=np.float64, ndmin=2)
@@ -102,17 +92,11 @@ def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2
         list_files(image_dir, IMAGE_SUFFIXES), list_files(scan_dir, SCAN_SUFFIXES), image_dir, scan_dir
     )
     stems = [p.stem for p in images]
-    n_all = len(list_files(image_dir, IMAGE_SUFFIXES))
-    times_path = seq_dir / "times.txt"
+    all_images = list_files(image_dir, IMAGE_SUFFIXES)
     notes: list[str] = []
-    if times_path.is_file():
-        times_all = _read_times(times_path, n_all)
-        index = {p.stem: i for i, p in enumerate(list_files(image_dir, IMAGE_SUFFIXES))}
-        times = times_all[[index[s] for s in stems]]
-    else:
-        times = assumed_timestamps(len(images), notes, str(times_path))
+    times = paired_timestamps(seq_dir / "times.txt", all_images, images, notes)
     poses_path = root / "poses" / f"{name}.txt"
-    poses = _read_poses(poses_path, n_all, Tr) if poses_path.is_file() and not problems else None
+    poses = _read_poses(poses_path, len(all_images), Tr) if poses_path.is_file() and not problems else None
     calibration = Calibration(K=K, T_cam_lidar=T_camX_cam0 @ Tr, source=str(calib_path))
     return FileSequence(
         name=f"{root.name}/{name}",

@@ -21,9 +21,9 @@ from calib.data.io import IMAGE_SUFFIXES, SCAN_SUFFIXES, kv_matrix, read_kv_file
 from calib.data.types import (
     Calibration,
     FileSequence,
-    assumed_timestamps,
     list_files,
     pair_by_stem,
+    paired_timestamps,
     shift_from_projection,
 )
 from calib.errors import DataError
@@ -110,15 +110,9 @@ def read_kitti_raw(path: Path, sequence: str | None = None, camera: int = 2) -> 
     images, scans, problems = pair_by_stem(
         all_images, list_files(scan_dir, SCAN_SUFFIXES), image_dir, scan_dir
     )
-    stamp_path = image_dir.parent / "timestamps.txt"
-    if stamp_path.is_file():
-        stamps = read_kitti_raw_timestamps(stamp_path)
-        if len(stamps) != len(all_images):
-            raise DataError(stamp_path, f"holds {len(stamps)} time stamps for {len(all_images)} images")
-        index = {p.stem: i for i, p in enumerate(all_images)}
-        times = stamps[[index[p.stem] for p in images]]
-    else:
-        times = assumed_timestamps(len(images), notes, str(stamp_path))
+    times = paired_timestamps(
+        image_dir.parent / "timestamps.txt", all_images, images, notes, read_kitti_raw_timestamps
+    )
     return FileSequence(
         name=drive.name,
         layout="kitti_raw",

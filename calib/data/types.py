@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import abc
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -265,3 +265,29 @@ def assumed_timestamps(n: int, notes: list[str], what: str, rate_hz: float = 10.
     """Evenly spaced times for a format without time stamps, noting the assumption."""
     notes.append(f"{what}: no time stamps; {rate_hz:g} Hz assumed")
     return np.arange(n, dtype=np.float64) / rate_hz
+
+
+def read_seconds(path: Path) -> np.ndarray:
+    """One time stamp in seconds per line."""
+    try:
+        return np.loadtxt(path, dtype=np.float64, ndmin=1)
+    except ValueError as exc:
+        raise DataError(path, f"time stamps do not parse ({exc})") from None
+
+
+def paired_timestamps(
+    path: Path,
+    all_images: list[Path],
+    images: list[Path],
+    notes: list[str],
+    parse: Callable[[Path], np.ndarray] = read_seconds,
+) -> np.ndarray:
+    """Time stamps of the paired ``images`` from a file holding one per image file (sorted
+    order, ``all_images``); 10 Hz assumed (and noted) when the file is absent."""
+    if not path.is_file():
+        return assumed_timestamps(len(images), notes, str(path))
+    stamps = parse(path)
+    if len(stamps) != len(all_images):
+        raise DataError(path, f"holds {len(stamps)} time stamps for {len(all_images)} images")
+    index = {p: i for i, p in enumerate(all_images)}
+    return stamps[[index[p] for p in images]]
