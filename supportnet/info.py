@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import track
 from rich.table import Table
 
@@ -75,8 +76,8 @@ def info(path: Path, sequence: str | None, camera: int, check_all: bool, console
     table.add_column(overflow="fold")
     K = facts["K"]
     size = facts["image_size"]
-    table.add_row("data", f"{path}  [{facts['layout']}]")
-    table.add_row("sequence", facts["name"])
+    table.add_row("data", f"{escape(str(path))}  (layout: {facts['layout']})")
+    table.add_row("sequence", escape(facts["name"]))
     table.add_row("frames", str(facts["frames"]))
     table.add_row("image", f"{size[1]} x {size[0]} (W x H)" if size else "unknown")
     table.add_row(
@@ -94,12 +95,12 @@ def info(path: Path, sequence: str | None, camera: int, check_all: bool, console
     table.add_row("image labels", "yes" if facts["image_labels"] else "none")
     table.add_row("poses", "ground truth present" if facts["poses"] else "none")
     for note in facts["notes"]:
-        table.add_row("note", note)
+        table.add_row("note", escape(note))
     console.print(table)
     if facts["problems"]:
         console.print(f"[bold red]{len(facts['problems'])} problem(s):[/]")
         for problem in facts["problems"]:
-            console.print(f"  - {problem}", soft_wrap=True)
+            console.print(f"  - {escape(problem)}", soft_wrap=True)
         path_part, _, problem = facts["problems"][0].partition(": ")
         raise DataError(path_part, problem)
     console.print(

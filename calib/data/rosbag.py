@@ -197,6 +197,11 @@ class BagSequence(Sequence):
         self._pairs = self._pair(image_stamps, cloud_stamps, max_gap)
         if not self._pairs:
             raise DataError(self.path, f"no image–scan pair within {max_gap * 1000:g} ms")
+        self.notes.append(
+            f"topics: image {self._image.topic}, cloud {self._cloud.topic}, camera_info "
+            f"{info_conn.topic}; {len(self._pairs)} pairs of {len(image_stamps)} images within "
+            f"{max_gap * 1000:g} ms"
+        )
         self.timestamps = np.array([image_stamps[i][0] for i, _ in self._pairs])
         self._lidar_times = np.array([cloud_stamps[j][0] for _, j in self._pairs])
         self._image_times_ns = [image_stamps[i][1] for i, _ in self._pairs]

@@ -43,7 +43,7 @@ def test_info_on_kitti_odometry(tmp_path):
     result = run_cli("info", tmp_path)
     assert result.returncode == 0, result.stderr
     for expected in (
-        "kitti_odometry",
+        "(layout: kitti_odometry)",
         "frames",
         "624 x 188",
         "fx 360.000",
