@@ -86,25 +86,27 @@ def horizontal_gradient(image: np.ndarray, reference_width: int = 1242) -> np.nd
 
 
 def contour_alignment(
-    image: np.ndarray,
+    edge_map: np.ndarray,
     points_lidar: np.ndarray,
     contour_index: np.ndarray,
     T_cam_lidar: np.ndarray,
     K: np.ndarray,
     visibility: Visibility = Visibility(),
 ) -> float:
-    """Mean :func:`horizontal_gradient` at the visible projected contour points.
+    """Mean of ``edge_map`` at the visible projected contour points.
 
-    A correct extrinsic puts LiDAR occluding contours on image edges, so this score peaks at
-    the true calibration (a target-free sanity check of conventions and of a calibration).
+    A correct extrinsic puts LiDAR occluding contours on image edges, so with
+    ``edge_map = horizontal_gradient(image)`` this score peaks at the true calibration (a
+    target-free sanity check of conventions and of a calibration).
 
     Args:
+        edge_map: ``(H, W)`` edge strength, e.g. :func:`horizontal_gradient` of the image.
         points_lidar: ``(N, 4)`` scan.
         contour_index: indices of contour points (``nearer`` of :func:`depth_discontinuities`).
     """
-    projected = project_scan(points_lidar, T_cam_lidar, K, image.shape[:2], visibility)
+    projected = project_scan(points_lidar, T_cam_lidar, K, edge_map.shape[:2], visibility)
     on_contour = np.isin(projected.index, contour_index)
     if not on_contour.any():
         return 0.0
     pixels = np.round(projected.uv[on_contour]).astype(int)
-    return float(horizontal_gradient(image)[pixels[:, 1], pixels[:, 0]].mean())
+    return float(edge_map[pixels[:, 1], pixels[:, 0]].mean())

@@ -19,7 +19,7 @@ from rich.table import Table
 from calib.data import Frame, open_dataset
 from calib.data.io import read_pcd_fields, write_image
 from calib.errors import DataError
-from calib.features import contour_alignment, depth_discontinuities
+from calib.features import contour_alignment, depth_discontinuities, horizontal_gradient
 from calib.geometry import perturb
 from calib.projection import project_scan
 from supportnet.fixtures import (
@@ -56,9 +56,10 @@ def contour_check(frame: Frame, ring: np.ndarray | None, seed: int = 0) -> dict:
     T = frame.calibration.T_cam_lidar
     contour, _ = depth_discontinuities(frame.points, ring)
     generator = torch.Generator().manual_seed(seed)
-    reference = contour_alignment(frame.image, frame.points, contour, T, frame.K)
+    edges = horizontal_gradient(frame.image)
+    reference = contour_alignment(edges, frame.points, contour, T, frame.K)
     perturbed = [
-        contour_alignment(frame.image, frame.points, contour, perturb(T, 0.0, 1.0, generator), frame.K)
+        contour_alignment(edges, frame.points, contour, perturb(T, 0.0, 1.0, generator), frame.K)
         for _ in range(PERTURBATIONS)
     ]
     return {

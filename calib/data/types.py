@@ -5,7 +5,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Iterator
 from collections.abc import Sequence as SequenceABC
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -53,9 +53,6 @@ class Calibration:
             if R is None or not np.isfinite(T).all() or not np.allclose(R @ R.T, np.eye(3), atol=1e-3):
                 raise DataError(self.source or "calibration", f"{name} is not a rigid 4x4 transform")
             object.__setattr__(self, name, T)
-
-    def with_extrinsic(self, T_cam_lidar: np.ndarray | None) -> Calibration:
-        return replace(self, T_cam_lidar=T_cam_lidar)
 
 
 def shift_from_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
