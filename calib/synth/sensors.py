@@ -1,0 +1,78 @@
+"""Sensor models of the synthetic worlds: the rays a pinhole camera and a spinning LiDAR cast.
+
+Frames: the LiDAR frame is x forward, y left, z up; the camera frame is x right, y down,
+z forward (DESIGN.md). Rays are unit directions in the sensor's own frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+__all__ = ["CameraConfig", "LidarConfig", "camera_rays", "lidar_rays"]
+
+
+class CameraConfig(BaseModel):
+    """Pinhole camera; the defaults are KITTI's colour camera at half resolution."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    width: int = Field(624, gt=0)
+    height: int = Field(188, gt=0)
+    fx: float = Field(360.8, gt=0)
+    fy: float = Field(360.8, gt=0)
+    cx: float = 304.8
+    cy: float = 86.4
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+class LidarConfig(BaseModel):
+    """Spinning multi-beam LiDAR; the defaults are a 64-beam HDL-64E-like pattern."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    beams: int = Field(64, gt=0)
+    elevation_max_deg: float = 2.0
+    elevation_min_deg: float = -24.9
+    azimuth_step_deg: float = Field(0.2, gt=0, le=10)
+    range_noise_m: float = Field(0.01, ge=0)
+    max_range_m: float = Field(120.0, gt=0)
+
+    @model_validator(mode="after")
+    def _elevations_ordered(self) -> LidarConfig:
+        if self.elevation_min_deg >= self.elevation_max_deg:
+            raise ValueError("elevation_min_deg must be below elevation_max_deg")
+        return self
+
+
+def camera_rays(camera: CameraConfig) -> np.ndarray:
+    """Unit rays through every pixel centre, row-major.
+
+    Returns:
+        ``(H * W, 3)`` float64 directions in the camera frame; pixel ``(u, v)`` is row
+        ``v * W + u``.
+    """
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
+    rays = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], -1)
+    rays = rays.reshape(-1, 3)
+    return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+def lidar_rays(lidar: LidarConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Beam directions of one revolution, stored ring by ring (as KITTI scans are).
+
+    Returns:
+        ``directions (B * A, 3)`` unit vectors in the LiDAR frame, ``ring (B * A,)`` beam index
+        from the top beam down, and ``azimuth (B * A,)`` in radians, sweeping from +π to -π
+        (counter-clockwise seen from above, as a Velodyne reports them).
+    """
+    elevation = np.radians(np.linspace(lidar.elevation_max_deg, lidar.elevation_min_deg, lidar.beams))
+    steps = int(round(360.0 / lidar.azimuth_step_deg))
+    azimuth = np.pi - np.arange(steps) * (2 * np.pi / steps)
+    el, az = np.meshgrid(elevation, azimuth, indexing="ij")
+    directions = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1)
+    ring = np.repeat(np.arange(lidar.beams), steps)
+    return directions.reshape(-1, 3), ring, az.reshape(-1)
