@@ -71,9 +71,6 @@ def contour_check(frame: Frame, ring: np.ndarray | None, seed: int = 0) -> dict:
     }
 
 
-ContourCheck = dict
-
-
 def run_demo(out: Path, overwrite: bool = False) -> None:
     console = Console()
     realdata = realdata_root()

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib.data.io import read_kv_file
+from calib.data.io import format_kv_line, read_kv_file
 
 __all__ = [
     "AMZ_DRIVE",
@@ -43,10 +43,6 @@ def realdata_root() -> Path | None:
     return None
 
 
-def _kv_line(key: str, M: np.ndarray) -> str:
-    return f"{key}: " + " ".join(f"{v:.12e}" for v in np.asarray(M)[:3].reshape(-1)) + "\n"
-
-
 def kitti_object_from_mmdet(realdata: Path, out: Path) -> Path:
     """Write mmdet3d's KITTI frame 000008 as a KITTI object split (``calib/000008.txt`` with
     ``P2``, ``R0_rect``, ``Tr_velo_to_cam`` from its pickle). Returns the split folder."""
@@ -57,9 +53,9 @@ def kitti_object_from_mmdet(realdata: Path, out: Path) -> Path:
     for sub in ("calib", "image_2", "velodyne"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     cams = info["images"]
-    text = "".join(_kv_line(f"P{i}", np.array(cams[f"CAM{i}"]["cam2img"])) for i in range(4))
-    text += "R0_rect: " + " ".join(f"{v:.12e}" for v in np.array(cams["R0_rect"])[:3, :3].reshape(-1)) + "\n"
-    text += _kv_line("Tr_velo_to_cam", np.array(info["lidar_points"]["Tr_velo_to_cam"]))
+    text = "".join(format_kv_line(f"P{i}", np.array(cams[f"CAM{i}"]["cam2img"])[:3]) for i in range(4))
+    text += format_kv_line("R0_rect", np.array(cams["R0_rect"])[:3, :3])
+    text += format_kv_line("Tr_velo_to_cam", np.array(info["lidar_points"]["Tr_velo_to_cam"])[:3])
     (out / "calib" / "000008.txt").write_text(text)
     shutil.copyfile(src / "000008.png", out / "image_2" / "000008.png")
     shutil.copyfile(src / "000008.bin", out / "velodyne" / "000008.bin")

@@ -17,6 +17,7 @@ import numpy as np
 from calib.errors import DataError
 
 __all__ = [
+    "format_kv_line",
     "lzf_decompress",
     "read_image",
     "read_kv_file",
@@ -331,6 +332,11 @@ def read_kv_file(path: Path) -> dict[str, np.ndarray | str]:
         except ValueError:
             result[key] = value.strip()
     return result
+
+
+def format_kv_line(key: str, values: np.ndarray) -> str:
+    """One ``key: v1 v2 ...`` line of a KITTI calibration file (the inverse of :func:`read_kv_file`)."""
+    return f"{key}: " + " ".join(f"{v:.12e}" for v in np.asarray(values, dtype=np.float64).reshape(-1)) + "\n"
 
 
 def kv_matrix(values: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndarray:

@@ -19,6 +19,7 @@ from calib.data.io import (
     IMAGE_SUFFIXES,
     SCAN_SUFFIXES,
     atomic_write_text,
+    format_kv_line,
     kv_matrix,
     read_kv_file,
     write_bin,
@@ -88,11 +89,11 @@ def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2
     for folder in (image_dir, scan_dir):
         if not folder.is_dir():
             raise DataError(folder, "folder not found")
+    all_images = list_files(image_dir, IMAGE_SUFFIXES)
     images, scans, problems = pair_by_stem(
-        list_files(image_dir, IMAGE_SUFFIXES), list_files(scan_dir, SCAN_SUFFIXES), image_dir, scan_dir
+        all_images, list_files(scan_dir, SCAN_SUFFIXES), image_dir, scan_dir
     )
     stems = [p.stem for p in images]
-    all_images = list_files(image_dir, IMAGE_SUFFIXES)
     notes: list[str] = []
     times = paired_timestamps(seq_dir / "times.txt", all_images, images, notes)
     poses_path = root / "poses" / f"{name}.txt"
@@ -111,10 +112,6 @@ def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2
         image_label_paths=optional_paths(seq_dir / "image_labels", stems, ".png"),
         poses=poses,
     )
-
-
-def _matrix_line(key: str, M: np.ndarray) -> str:
-    return f"{key}: " + " ".join(f"{v:.12e}" for v in np.asarray(M, dtype=np.float64).reshape(-1)) + "\n"
 
 
 def write_kitti_odometry(
@@ -144,8 +141,8 @@ def write_kitti_odometry(
     for sub in ("image_2", "velodyne"):
         (seq_dir / sub).mkdir(parents=True, exist_ok=True)
     P = np.hstack([calibration.K, np.zeros((3, 1))])
-    calib_text = "".join(_matrix_line(f"P{i}", P) for i in range(4))
-    calib_text += _matrix_line("Tr", calibration.T_cam_lidar[:3, :])
+    calib_text = "".join(format_kv_line(f"P{i}", P) for i in range(4))
+    calib_text += format_kv_line("Tr", calibration.T_cam_lidar[:3, :])
     atomic_write_text(seq_dir / "calib.txt", calib_text)
     for i, frame in enumerate(frames):
         stem = f"{i:06d}"

@@ -10,6 +10,7 @@ import pytest
 from calib.data import detect_layout, open_dataset
 from calib.data.custom import write_custom
 from calib.data.io import (
+    format_kv_line,
     lzf_decompress,
     read_label,
     read_pcd,
@@ -58,7 +59,7 @@ def test_kitti_odometry_camera_offset_from_P2(tmp_path, frames):
     text = (seq_dir / "calib.txt").read_text().splitlines()
     fx = KITTI_K[0, 0]
     P2 = np.hstack([KITTI_K, np.array([[fx * 0.06], [0.0], [0.0]])])
-    text[2] = "P2: " + " ".join(f"{v:.12e}" for v in P2.reshape(-1))
+    text[2] = format_kv_line("P2", P2).rstrip("\n")
     (seq_dir / "calib.txt").write_text("\n".join(text) + "\n")
     seq = open_dataset(tmp_path, "00")
     X = np.array([3.0, 1.0, 0.5, 1.0])
@@ -118,15 +119,12 @@ def _write_kitti_raw(root: Path, frames, camera=2, timestamps=True) -> tuple[Pat
     }
     date.mkdir(parents=True)
     (date / "calib_cam_to_cam.txt").write_text(
-        "calib_time: 09-Jan-2012 13:57:47\n"
-        + "".join(f"{k}: " + " ".join(f"{v:.12e}" for v in np.ravel(m)) + "\n" for k, m in lines.items())
+        "calib_time: 09-Jan-2012 13:57:47\n" + "".join(format_kv_line(k, m) for k, m in lines.items())
     )
     (date / "calib_velo_to_cam.txt").write_text(
-        "calib_time: 15-Mar-2012 11:37:16\nR: "
-        + " ".join(f"{v:.12e}" for v in T_velo[:3, :3].ravel())
-        + "\nT: "
-        + " ".join(f"{v:.12e}" for v in T_velo[:3, 3])
-        + "\n"
+        "calib_time: 15-Mar-2012 11:37:16\n"
+        + format_kv_line("R", T_velo[:3, :3])
+        + format_kv_line("T", T_velo[:3, 3])
     )
     img_dir, scan_dir = drive / f"image_0{camera}" / "data", drive / "velodyne_points" / "data"
     img_dir.mkdir(parents=True)
@@ -175,9 +173,8 @@ def test_kitti_object_transform_matches_devkit_formula(tmp_path, frames):
     R0 = perturb(np.eye(4), 0.0, 0.5)[:3, :3]
     Tr = kitti_like_extrinsic()
     for i, f in enumerate(frames):
-        body = "".join(f"P{k}: " + " ".join(f"{v:.12e}" for v in P2.ravel()) + "\n" for k in range(4))
-        body += "R0_rect: " + " ".join(f"{v:.12e}" for v in R0.ravel()) + "\n"
-        body += "Tr_velo_to_cam: " + " ".join(f"{v:.12e}" for v in Tr[:3].ravel()) + "\n"
+        body = "".join(format_kv_line(f"P{k}", P2) for k in range(4))
+        body += format_kv_line("R0_rect", R0) + format_kv_line("Tr_velo_to_cam", Tr[:3])
         (root / "calib" / f"{i:06d}.txt").write_text(body)
         write_image(root / "image_2" / f"{i:06d}.png", f.image)
         write_bin(root / "velodyne" / f"{i:06d}.bin", f.points)
