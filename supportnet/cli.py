@@ -4,6 +4,7 @@ each command so ``supportnet --help`` stays instant."""
 from __future__ import annotations
 
 import sys
+from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
@@ -20,6 +21,31 @@ app = typer.Typer(
 )
 
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace an existing result.")]
+
+
+class World(str, Enum):
+    vineyard = "vineyard"
+    urban = "urban"
+
+
+@app.command()
+def synth(
+    world: Annotated[World, typer.Option(help="Which synthetic world.")],
+    out: Annotated[Path, typer.Option(help="Dataset root (KITTI odometry layout).")],
+    frames: Annotated[int, typer.Option(help="Number of frames (10 Hz by default).")] = 100,
+    seed: Annotated[int, typer.Option(help="Seed: world, extrinsic and noise all follow from it.")] = 0,
+    sequence: Annotated[str, typer.Option(help="Sequence folder name under sequences/.")] = "00",
+    config: Annotated[
+        Path | None, typer.Option(help="World config (default: configs/synth/<world>.yaml).")
+    ] = None,
+    workers: Annotated[int, typer.Option(help="Processes rendering frames in parallel.")] = 2,
+    overwrite: Overwrite = False,
+) -> None:
+    """Write a synthetic sequence with ground truth: images, scans, point and pixel labels,
+    poses, the reference extrinsic (calib.txt) and meta.json."""
+    from supportnet.synth import run_synth
+
+    run_synth(world.value, frames, seed, out, sequence, config, overwrite, workers)
 
 
 @app.command()

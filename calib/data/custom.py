@@ -19,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, model_validator
 
+from calib.config import read_yaml, validate
 from calib.data.io import IMAGE_SUFFIXES, SCAN_SUFFIXES, atomic_write_text, write_bin, write_image
 from calib.data.types import (
     Calibration,
@@ -82,17 +83,7 @@ def _matrix(
 def read_calibration_yaml(path: Path) -> Calibration:
     """Parse and validate a ``calibration.yaml`` (schema in the module docstring)."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError(path, "file not found")
-    try:
-        raw = yaml.safe_load(path.read_text())
-        spec = CalibrationFile.model_validate(raw if raw is not None else {})
-    except yaml.YAMLError as exc:
-        raise DataError(path, f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "file"
-        raise DataError(path, f"{where}: {first['msg']}") from None
+    spec = validate(CalibrationFile, read_yaml(path), path)
     return Calibration(
         K=_matrix(spec.intrinsics().tolist(), (3, 3), "K", path),
         T_cam_lidar=_matrix(spec.T_cam_lidar, (4, 4), "T_cam_lidar", path),

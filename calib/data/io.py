@@ -25,6 +25,7 @@ __all__ = [
     "read_label_image",
     "read_pcd",
     "read_pcd_fields",
+    "read_point_times",
     "read_scan",
     "validate_points",
     "write_bin",
@@ -247,19 +248,33 @@ def read_scan(path: Path) -> np.ndarray:
     return reader(path)
 
 
-def read_label(path: Path, n_points: int) -> np.ndarray:
-    """SemanticKITTI ``.label``: uint32 per point, lower 16 bits = class -> ``(N,)`` uint16."""
+def _read_per_point(path: Path, n_points: int, what: str) -> np.ndarray:
+    """A raw file of one 4-byte value per point, checked against the scan's length."""
     path = Path(path)
     _require_file(path)
     size = path.stat().st_size
     if size != 4 * n_points:
-        raise DataError(path, f"holds {size / 4:g} labels for a scan of {n_points} points")
-    return (np.fromfile(path, dtype=np.uint32) & 0xFFFF).astype(np.uint16)
+        raise DataError(path, f"holds {size / 4:g} {what} for a scan of {n_points} points")
+    return np.fromfile(path, dtype=np.uint32)
 
 
-def write_label(path: Path, labels: np.ndarray) -> None:
-    """Write per-point class ids as SemanticKITTI ``.label`` (instance id 0)."""
-    np.ascontiguousarray(labels, dtype=np.uint32).tofile(path)
+def read_label(path: Path, n_points: int) -> np.ndarray:
+    """SemanticKITTI ``.label``: uint32 per point, lower 16 bits = class -> ``(N,)`` uint16."""
+    return (_read_per_point(path, n_points, "labels") & 0xFFFF).astype(np.uint16)
+
+
+def read_point_times(path: Path, n_points: int) -> np.ndarray:
+    """Per-point times: float32 seconds from the scan stamp, one per point -> ``(N,)`` float64."""
+    return _read_per_point(path, n_points, "point times").view(np.float32).astype(np.float64)
+
+
+def write_label(path: Path, labels: np.ndarray, instances: np.ndarray | None = None) -> None:
+    """Write per-point class ids as SemanticKITTI ``.label``, instance ids (default 0) in the
+    upper 16 bits."""
+    value = np.asarray(labels, dtype=np.uint32) & 0xFFFF
+    if instances is not None:
+        value |= np.asarray(instances, dtype=np.uint32) << 16
+    np.ascontiguousarray(value).tofile(path)
 
 
 def _decode_image(path: Path, flags: int) -> np.ndarray:

@@ -38,7 +38,8 @@ from calib.data.types import (
 )
 from calib.errors import DataError
 
-__all__ = ["is_kitti_odometry", "read_kitti_odometry", "write_kitti_odometry", "sequence_names"]
+__all__ = ["KittiOdometryWriter", "is_kitti_odometry", "read_kitti_odometry", "sequence_names",
+           "write_kitti_odometry"]
 
 
 def is_kitti_odometry(path: Path) -> bool:
@@ -110,8 +111,60 @@ def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2
         problems=problems,
         label_paths=optional_paths(seq_dir / "labels", stems, ".label"),
         image_label_paths=optional_paths(seq_dir / "image_labels", stems, ".png"),
+        point_time_paths=optional_paths(seq_dir / "point_times", stems, ".bin"),
         poses=poses,
     )
+
+
+class KittiOdometryWriter:
+    """Writes ``root/sequences/<sequence>`` of the KITTI odometry layout frame by frame.
+
+    Every camera ``P0..P3`` is written as ``K [I | 0]`` and ``Tr`` as the reference ``T_cam_lidar``,
+    so reading camera 2 returns exactly the calibration given. Besides the standard files it writes
+    ``labels/`` (SemanticKITTI, instance id in the upper 16 bits), ``image_labels/`` (uint16 class
+    PNGs) and ``point_times/`` (float32 per-point seconds from the scan stamp) where frames have them.
+    """
+
+    def __init__(self, root: Path, sequence: str, calibration: Calibration):
+        if calibration.T_cam_lidar is None:
+            raise ValueError("the KITTI odometry layout needs a reference T_cam_lidar")
+        self.root, self.sequence, self.calibration = Path(root), sequence, calibration
+        self.seq_dir = self.root / "sequences" / sequence
+        for sub in ("image_2", "velodyne"):
+            (self.seq_dir / sub).mkdir(parents=True, exist_ok=True)
+        P = np.hstack([calibration.K, np.zeros((3, 1))])
+        calib_text = "".join(format_kv_line(f"P{i}", P) for i in range(4))
+        calib_text += format_kv_line("Tr", calibration.T_cam_lidar[:3, :])
+        atomic_write_text(self.seq_dir / "calib.txt", calib_text)
+        self._times: list[float] = []
+
+    def _path(self, folder: str, suffix: str) -> Path:
+        (self.seq_dir / folder).mkdir(exist_ok=True)
+        return self.seq_dir / folder / f"{len(self._times):06d}{suffix}"
+
+    def add(self, frame: Frame, instances: np.ndarray | None = None) -> None:
+        """Append one frame (its ``timestamp`` is the camera time; 10 Hz when missing)."""
+        write_image(self._path("image_2", ".png"), frame.image)
+        write_bin(self._path("velodyne", ".bin"), frame.points)
+        if frame.labels is not None:
+            write_label(self._path("labels", ".label"), frame.labels, instances)
+        if frame.image_labels is not None:
+            write_image(self._path("image_labels", ".png"), frame.image_labels.astype(np.uint16))
+        if frame.point_times is not None:
+            np.asarray(frame.point_times, np.float32).tofile(self._path("point_times", ".bin"))
+        self._times.append(frame.timestamp if frame.timestamp is not None else len(self._times) / 10.0)
+
+    def close(self, poses_lidar: np.ndarray | None = None) -> Path:
+        """Write ``times.txt`` and, given ``(len, 4, 4)`` LiDAR poses, ``poses/<sequence>.txt``
+        (as camera-0 poses, KITTI's convention). Returns the sequence folder."""
+        atomic_write_text(self.seq_dir / "times.txt", "".join(f"{t:.6e}\n" for t in self._times))
+        if poses_lidar is not None:
+            Tr = self.calibration.T_cam_lidar
+            T_w_cam0 = Tr @ np.asarray(poses_lidar) @ np.linalg.inv(Tr)
+            (self.root / "poses").mkdir(parents=True, exist_ok=True)
+            rows = "".join(" ".join(f"{v:.12e}" for v in T[:3, :].reshape(-1)) + "\n" for T in T_w_cam0)
+            atomic_write_text(self.root / "poses" / f"{self.sequence}.txt", rows)
+        return self.seq_dir
 
 
 def write_kitti_odometry(
@@ -120,13 +173,10 @@ def write_kitti_odometry(
     frames: list[Frame],
     poses_lidar: np.ndarray | None = None,
 ) -> Path:
-    """Write frames as ``root/sequences/<sequence>`` of the KITTI odometry layout.
-
-    Every camera ``P0..P3`` is written as ``K [I | 0]`` and ``Tr`` as the frames' reference
-    ``T_cam_lidar``, so reading camera 2 returns exactly the calibration given.
+    """Write frames sharing one calibration as ``root/sequences/<sequence>`` (see
+    :class:`KittiOdometryWriter`).
 
     Args:
-        frames: frames sharing one calibration with a reference extrinsic, and time stamps.
         poses_lidar: optional ``(len, 4, 4)`` LiDAR poses, stored as camera-0 poses.
 
     Returns:
@@ -134,32 +184,7 @@ def write_kitti_odometry(
     """
     if not frames:
         raise ValueError("no frames to write")
-    calibration = frames[0].calibration
-    if calibration.T_cam_lidar is None:
-        raise ValueError("the KITTI odometry layout needs a reference T_cam_lidar")
-    seq_dir = Path(root) / "sequences" / sequence
-    for sub in ("image_2", "velodyne"):
-        (seq_dir / sub).mkdir(parents=True, exist_ok=True)
-    P = np.hstack([calibration.K, np.zeros((3, 1))])
-    calib_text = "".join(format_kv_line(f"P{i}", P) for i in range(4))
-    calib_text += format_kv_line("Tr", calibration.T_cam_lidar[:3, :])
-    atomic_write_text(seq_dir / "calib.txt", calib_text)
-    for i, frame in enumerate(frames):
-        stem = f"{i:06d}"
-        write_image(seq_dir / "image_2" / f"{stem}.png", frame.image)
-        write_bin(seq_dir / "velodyne" / f"{stem}.bin", frame.points)
-        if frame.labels is not None:
-            (seq_dir / "labels").mkdir(exist_ok=True)
-            write_label(seq_dir / "labels" / f"{stem}.label", frame.labels)
-        if frame.image_labels is not None:
-            (seq_dir / "image_labels").mkdir(exist_ok=True)
-            write_image(seq_dir / "image_labels" / f"{stem}.png", frame.image_labels.astype(np.uint16))
-    times = [f.timestamp if f.timestamp is not None else i / 10.0 for i, f in enumerate(frames)]
-    atomic_write_text(seq_dir / "times.txt", "".join(f"{t:.6e}\n" for t in times))
-    if poses_lidar is not None:
-        Tr = calibration.T_cam_lidar
-        T_w_cam0 = Tr @ np.asarray(poses_lidar) @ np.linalg.inv(Tr)
-        (Path(root) / "poses").mkdir(parents=True, exist_ok=True)
-        rows = "".join(" ".join(f"{v:.12e}" for v in T[:3, :].reshape(-1)) + "\n" for T in T_w_cam0)
-        atomic_write_text(Path(root) / "poses" / f"{sequence}.txt", rows)
-    return seq_dir
+    writer = KittiOdometryWriter(root, sequence, frames[0].calibration)
+    for frame in frames:
+        writer.add(frame)
+    return writer.close(poses_lidar)

@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.data.io import read_image, read_label, read_label_image, read_scan
+from calib.data.io import read_image, read_label, read_label_image, read_point_times, read_scan
 from calib.errors import DataError
 
 __all__ = ["Calibration", "FileSequence", "Frame", "Sequence", "shift_from_projection"]
@@ -192,6 +192,7 @@ class FileSequence(Sequence):
         timestamps: camera times in seconds.
         label_paths: optional per-frame SemanticKITTI ``.label`` files (``None`` entries allowed).
         image_label_paths: optional per-frame class PNGs.
+        point_time_paths: optional per-frame float32 files of per-point times (seconds).
     """
 
     def __init__(
@@ -208,6 +209,7 @@ class FileSequence(Sequence):
         image_label_paths: list[Path | None] | None = None,
         calibrations: list[Calibration] | None = None,
         poses: np.ndarray | None = None,
+        point_time_paths: list[Path | None] | None = None,
     ):
         n = len(image_paths)
         if len(scan_paths) != n or len(timestamps) != n:
@@ -221,6 +223,7 @@ class FileSequence(Sequence):
         self.problems += _listing_problems(self.scan_paths, "scan")
         self.label_paths = label_paths or [None] * n
         self.image_label_paths = image_label_paths or [None] * n
+        self.point_time_paths = point_time_paths or [None] * n
         self.calibrations = calibrations
         self.poses = poses
 
@@ -234,6 +237,7 @@ class FileSequence(Sequence):
             image = cv2.undistort(image, calibration.K, calibration.distortion)
         points = read_scan(self.scan_paths[i])
         label_path, image_label_path = self.label_paths[i], self.image_label_paths[i]
+        times_path = self.point_time_paths[i]
         return Frame(
             image=image,
             points=points,
@@ -243,6 +247,7 @@ class FileSequence(Sequence):
             timestamp=float(self.timestamps[i]),
             labels=read_label(label_path, len(points)) if label_path else None,
             image_labels=read_label_image(image_label_path) if image_label_path else None,
+            point_times=read_point_times(times_path, len(points)) if times_path else None,
         )
 
 

@@ -1,0 +1,179 @@
+"""Generate a synthetic sequence: build the world, drive through it, let both sensors sample it
+at their own time stamps, and write the KITTI odometry layout with every ground truth."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from calib.data.kitti_odometry import KittiOdometryWriter
+from calib.data.types import Calibration, Frame
+from calib.synth.config import ExtrinsicConfig, SynthConfig
+from calib.synth.raycast import Raycaster
+from calib.synth.render import Camera, Lidar
+from calib.synth.urban import build_urban
+from calib.synth.vineyard import build_vineyard
+from calib.synth.world import World
+
+__all__ = ["SyntheticFrame", "Synthesizer", "reference_extrinsic", "write_sequence"]
+
+RIGID_CLASSES = {10, 50, 51, 52, 71, 80, 81, 99}
+
+
+def reference_extrinsic(config: ExtrinsicConfig, rng: np.random.Generator) -> np.ndarray:
+    """The sequence's ground-truth ``T_cam_lidar``: the nominal mounting (camera looking along the
+    LiDAR's x axis, tilted down by ``camera_pitch_deg``) moved by a seeded deviation of
+    ``jitter_cm`` · U(0.5, 1) in a random direction and ``jitter_deg`` · U(0.5, 1) about a random
+    axis, so no two sequences share an extrinsic."""
+    pitch = np.radians(config.camera_pitch_deg)
+    z_cam = np.array([np.cos(pitch), 0.0, -np.sin(pitch)])  # optical axis, in the LiDAR frame
+    x_cam = np.array([0.0, -1.0, 0.0])
+    T_lidar_cam = np.eye(4)
+    T_lidar_cam[:3, :3] = np.column_stack([x_cam, np.cross(z_cam, x_cam), z_cam])
+    T_lidar_cam[:3, 3] = config.camera_position_m
+    T = np.linalg.inv(T_lidar_cam)
+    axis, direction = rng.normal(size=3), rng.normal(size=3)
+    angle = np.radians(config.jitter_deg) * rng.uniform(0.5, 1.0)
+    delta = np.eye(4)
+    delta[:3, :3] = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
+    delta[:3, 3] = config.jitter_cm / 100 * rng.uniform(0.5, 1.0) * direction / np.linalg.norm(direction)
+    return delta @ T
+
+
+@dataclass(frozen=True)
+class SyntheticFrame:
+    """One frame with its ground truth beyond what :class:`Frame` holds."""
+
+    frame: Frame
+    instances: np.ndarray
+    T_world_lidar: np.ndarray
+
+
+class Synthesizer:
+    """A world and its sensors for one seed; :meth:`frames` renders them one by one.
+
+    Args:
+        config: the validated configuration.
+        frames: how many frames (sets how far the vehicle drives, hence the world's size).
+        seed: every random choice follows from it; the same seed gives the same bytes.
+    """
+
+    def __init__(self, config: SynthConfig, frames: int, seed: int):
+        if frames < 1:
+            raise ValueError("need at least one frame")
+        self.config, self.n_frames, self.seed = config, frames, seed
+        rng = np.random.default_rng(seed)
+        self.T_cam_lidar = reference_extrinsic(config.extrinsic, rng)
+        travel = frames / config.timing.rate_hz * config.drive.speed_mps
+        build = build_vineyard if config.world == "vineyard" else build_urban
+        layout = config.vineyard if config.world == "vineyard" else config.urban
+        self.world: World = build(layout, config.drive, travel, rng)
+        self.calibration = Calibration(K=config.camera.K, T_cam_lidar=self.T_cam_lidar,
+                                       image_size=(config.camera.height, config.camera.width),
+                                       source=f"synthetic {config.world} seed {seed}")
+        self._static: Raycaster | None = None
+        self.camera = Camera(config.camera, config.light, seed)
+        self.lidar = Lidar(config.lidar, config.timing.lidar_period_s, seed)
+
+    @property
+    def static(self) -> Raycaster:
+        """The static scene, built on first use (in each worker process, not before forking)."""
+        if self._static is None:
+            self._static = Raycaster([self.world.static])
+        return self._static
+
+    def lidar_time(self, i: int) -> float:
+        return i / self.config.timing.rate_hz
+
+    def lidar_poses(self) -> np.ndarray:
+        """``(frames, 4, 4)`` ground-truth ``T_world_lidar`` at each scan's stamp."""
+        return self.world.drive.lidar_poses(np.array([self.lidar_time(i) for i in range(self.n_frames)]))
+
+    def render(self, i: int) -> SyntheticFrame:
+        """Frame ``i``: the LiDAR sweeps at ``t_L = i / rate``, the camera exposes at
+        ``t_L + camera_offset_s``; moving leaves and cars are where they are at each time."""
+        timing, wind = self.config.timing, self.config.wind
+        rng = np.random.default_rng([self.seed, i])
+        t_lidar = self.lidar_time(i)
+        t_cam = t_lidar + timing.camera_offset_s
+        drive = self.world.drive
+        T_world_cam = drive.lidar_poses(np.array([t_cam]))[0] @ np.linalg.inv(self.T_cam_lidar)
+        image, image_labels = self.camera.render(self.static.plus(self.world.dynamic(t_cam, wind)),
+                                                 T_world_cam, rng)
+        if timing.motion_distortion:
+            T_world_lidar = drive.lidar_poses(t_lidar + self.lidar.times[: self.lidar.azimuth_steps])
+        else:
+            T_world_lidar = drive.lidar_poses(np.array([t_lidar]))[0]
+        scan = self.lidar.scan(self.static.plus(self.world.dynamic(t_lidar, wind)), T_world_lidar, rng)
+        frame = Frame(image=image, points=scan.points, calibration=self.calibration, index=i,
+                      name=f"{i:06d}", timestamp=t_cam, lidar_timestamp=t_lidar, labels=scan.labels,
+                      image_labels=image_labels,
+                      point_times=scan.times if timing.motion_distortion else None)
+        pose = T_world_lidar if T_world_lidar.ndim == 2 else drive.lidar_poses(np.array([t_lidar]))[0]
+        return SyntheticFrame(frame, scan.instance, pose)
+
+    def frames(self, workers: int = 1) -> Iterator[SyntheticFrame]:
+        """Every frame in order; ``workers > 1`` renders them in that many forked processes
+        (frames depend only on the seed and their index, so the bytes do not change)."""
+        if workers <= 1 or self.n_frames < 2:
+            yield from map(self.render, range(self.n_frames))
+            return
+        global _WORKER_SYNTH
+        _WORKER_SYNTH = self
+        with multiprocessing.get_context("fork").Pool(workers) as pool:
+            yield from pool.imap(_render_in_worker, range(self.n_frames), chunksize=2)
+
+    def meta(self) -> dict:
+        """What ``meta.json`` records: world, seed, sensors, ground truth, offsets."""
+        c = self.config
+        return {
+            "world": c.world,
+            "seed": self.seed,
+            "frames": self.n_frames,
+            "T_cam_lidar": self.T_cam_lidar.tolist(),
+            "K": c.camera.K.tolist(),
+            "image_size": [c.camera.height, c.camera.width],
+            "camera_offset_s": c.timing.camera_offset_s,
+            "wind": c.wind.model_dump(),
+            "timing": c.timing.model_dump(),
+            "config": c.model_dump(mode="json"),
+            "classes": {str(k): v for k, v in sorted(self.world.classes.items())},
+            "rigid_classes": sorted(RIGID_CLASSES & set(self.world.classes)),
+            "conventions": {
+                "times.txt": "camera exposure times; each scan's stamp is that minus camera_offset_s",
+                "poses": "poses/NN.txt holds camera-0 poses at the LiDAR stamps (KITTI convention); "
+                "T_world_lidar = inv(Tr) @ pose @ Tr",
+                "point_times": "seconds from the scan stamp, 0 where the beam points forward",
+            },
+        }
+
+
+_WORKER_SYNTH: Synthesizer | None = None
+
+
+def _render_in_worker(i: int) -> SyntheticFrame:
+    return _WORKER_SYNTH.render(i)
+
+
+def write_sequence(synth: Synthesizer, root: Path, sequence: str, workers: int = 1,
+                   progress: Callable[[int], None] | None = None) -> Path:
+    """Render every frame into ``root/sequences/<sequence>`` with ``meta.json`` and
+    ``classes.json`` beside the KITTI files. Returns the sequence folder."""
+    writer = KittiOdometryWriter(root, sequence, synth.calibration)
+    poses = []
+    for item in synth.frames(workers):
+        writer.add(item.frame, item.instances)
+        poses.append(item.T_world_lidar)
+        if progress is not None:
+            progress(1)
+    seq_dir = writer.close(np.stack(poses))
+    meta = synth.meta()
+    (seq_dir / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
+    (seq_dir / "classes.json").write_text(json.dumps(meta["classes"], indent=2) + "\n")
+    return seq_dir

@@ -1,0 +1,109 @@
+"""The two sensors sampling a world: a shaded camera image with per-pixel classes, and a LiDAR
+scan with intensities, labels and drop-outs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.synth.config import LightConfig
+from calib.synth.materials import sky, surface, to_srgb
+from calib.synth.raycast import Raycaster
+from calib.synth.sensors import CameraConfig, LidarConfig, camera_rays, lidar_rays
+
+__all__ = ["Camera", "Lidar", "LidarScan", "sun_direction"]
+
+
+def sun_direction(light: LightConfig) -> np.ndarray:
+    """Unit vector towards the sun in the world frame (z up)."""
+    el, az = np.radians(light.sun_elevation_deg), np.radians(light.sun_azimuth_deg)
+    return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+class Camera:
+    """Renders what a pinhole camera sees: sun and sky light, cast shadows, image noise."""
+
+    def __init__(self, config: CameraConfig, light: LightConfig, seed: int = 0):
+        self.config, self.light, self.seed = config, light, seed
+        self._rays = camera_rays(config)
+        self._sun = sun_direction(light)
+
+    def render(self, caster: Raycaster, T_world_cam: np.ndarray,
+               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Returns ``image (H, W, 3)`` uint8 RGB and ``labels (H, W)`` uint16 class per pixel
+        (0 where the ray escapes to the sky)."""
+        H, W = self.config.height, self.config.width
+        directions = self._rays @ T_world_cam[:3, :3].T
+        origin = T_world_cam[:3, 3]
+        hits = caster.cast(origin, directions)
+        hit = hits.hit
+        rgb = np.empty((len(directions), 3), np.float32)
+        rgb[~hit] = sky(directions[~hit], self._sun, self.seed)
+        points = origin + directions[hit] * hits.t[hit, None]
+        normal = hits.normal[hit]
+        color, _ = surface(hits.material[hit], points, normal, hits.instance[hit], self.seed)
+        cos_sun = normal @ self._sun
+        facing = cos_sun > 0
+        lit = np.zeros(len(points), bool)
+        lit[facing] = ~caster.occluded(points[facing] + 0.01 * normal[facing], self._sun)
+        sky_light = self.light.ambient * (0.75 + 0.25 * normal[:, 2])
+        rgb[hit] = color * (sky_light + self.light.sun * np.where(lit, cos_sun, 0.0))[:, None]
+        rgb += rng.normal(0.0, self.light.image_noise, rgb.shape).astype(np.float32)
+        return to_srgb(rgb).reshape(H, W, 3), hits.label.reshape(H, W)
+
+
+@dataclass(frozen=True)
+class LidarScan:
+    """One revolution as a KITTI scan.
+
+    Attributes:
+        points: ``(N, 4)`` float32 ``x, y, z, intensity`` in the LiDAR frame (at each point's time).
+        labels: ``(N,)`` uint16 class. instance: ``(N,)`` uint16.
+        times: ``(N,)`` seconds relative to the scan stamp (0 when the beam points forward).
+    """
+
+    points: np.ndarray
+    labels: np.ndarray
+    instance: np.ndarray
+    times: np.ndarray
+
+
+class Lidar:
+    """A spinning multi-beam LiDAR: range noise, intensity from reflectance and incidence angle,
+    weak returns dropped."""
+
+    def __init__(self, config: LidarConfig, period_s: float, seed: int = 0):
+        self.config, self.period_s, self.seed = config, period_s, seed
+        self.directions, self.ring, azimuth = lidar_rays(config)
+        self.azimuth_steps = len(self.directions) // config.beams
+        # The sweep turns from +π to -π and passes forward (azimuth 0) at the scan's stamp
+        self.times = -azimuth / (2 * np.pi) * period_s
+
+    def scan(self, caster: Raycaster, T_world_lidar: np.ndarray, rng: np.random.Generator) -> LidarScan:
+        """Cast every beam.
+
+        Args:
+            T_world_lidar: ``(4, 4)`` pose, or ``(A, 4, 4)`` one per azimuth step (motion distortion).
+        """
+        T = T_world_lidar if T_world_lidar.ndim == 3 else T_world_lidar[None]
+        column = np.tile(np.arange(self.azimuth_steps), self.config.beams) % len(T)
+        directions = np.einsum("nij,nj->ni", T[column, :3, :3], self.directions)
+        origins = T[column, :3, 3]
+        hits = caster.cast(origins, directions)
+        r = hits.t + rng.normal(0.0, self.config.range_noise_m, len(directions))
+        valid = hits.hit & (r < self.config.max_range_m) & (r > 0.5)
+        points = origins[valid] + directions[valid] * hits.t[valid, None]
+        _, reflectance = surface(hits.material[valid], points, hits.normal[valid], hits.instance[valid],
+                                 self.seed, color=False)
+        incidence = -np.einsum("ij,ij->i", hits.normal[valid], directions[valid])
+        intensity = np.clip(reflectance * incidence + rng.normal(0, 0.01, valid.sum()), 0, 1)
+        # Weak returns (dark, grazing or far) are lost: keep-probability rises with the signal
+        signal = intensity * np.minimum(1.0, (25.0 / r[valid]) ** 2)
+        keep = rng.uniform(0, 1, len(signal)) < np.clip((signal - 0.004) / 0.02, 0, 1)
+        index = np.flatnonzero(valid)[keep]
+        xyz = self.directions[index] * r[index, None]
+        return LidarScan(
+            np.column_stack([xyz, intensity[keep]]).astype(np.float32),
+            hits.label[index], hits.instance[index], self.times[index],
+        )

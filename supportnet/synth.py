@@ -1,0 +1,66 @@
+"""``supportnet synth``: write a synthetic vineyard or urban sequence in the KITTI odometry layout."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from calib.errors import DataError
+from calib.synth.config import load_synth_config
+from calib.synth.generate import Synthesizer, write_sequence
+
+__all__ = ["run_synth"]
+
+
+def run_synth(world: str, frames: int, seed: int, out: Path, sequence: str = "00",
+              config: Path | None = None, overwrite: bool = False, workers: int = 2,
+              console: Console | None = None) -> Path:
+    """Generate ``out/sequences/<sequence>`` (and ``out/poses/<sequence>.txt``) atomically.
+
+    Other sequences already in ``out`` are kept, so several seeds can share one dataset root.
+
+    Returns:
+        The sequence folder.
+    """
+    console = console or Console(stderr=True)
+    if frames < 1:
+        raise DataError("--frames", f"must be at least 1, got {frames}")
+    if not re.fullmatch(r"[A-Za-z0-9_-]+", sequence):
+        raise DataError("--sequence", f"{sequence!r} is not a folder name (letters, digits, - and _)")
+    out = Path(out)
+    seq_dir, pose_file = out / "sequences" / sequence, out / "poses" / f"{sequence}.txt"
+    if seq_dir.exists() and not overwrite:
+        raise DataError(seq_dir, "already exists; pass --overwrite to replace it")
+    cfg = load_synth_config(world, config)
+    start = time.perf_counter()
+    synth = Synthesizer(cfg, frames, seed)
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".synth-{sequence}.", dir=out))
+    try:
+        columns = (TextColumn(f"{world} seq {sequence}"), BarColumn(), MofNCompleteColumn(),
+                   TimeRemainingColumn())
+        with Progress(*columns, console=console, transient=True) as progress:
+            task = progress.add_task("render", total=frames)
+            written = write_sequence(synth, tmp, sequence, workers,
+                                     lambda n: progress.advance(task, n))
+        (written / "config.yaml").write_text(yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))
+        if seq_dir.exists():
+            shutil.rmtree(seq_dir)
+        seq_dir.parent.mkdir(parents=True, exist_ok=True)
+        pose_file.parent.mkdir(parents=True, exist_ok=True)
+        written.rename(seq_dir)
+        (tmp / "poses" / f"{sequence}.txt").replace(pose_file)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    seconds = time.perf_counter() - start
+    console.print(f"wrote {frames} {world} frames (seed {seed}) to {seq_dir} "
+                  f"in {seconds:.1f} s ({frames / seconds:.1f} frames/s)", markup=False, highlight=False,
+                  soft_wrap=True)
+    return seq_dir
