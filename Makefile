@@ -3,7 +3,7 @@ PY      := .venv/bin/python
 STAMP   := .venv/.installed
 TORCH   := torch==2.13.0
 
-.PHONY: demo test test-all lint clean
+.PHONY: demo test test-all bench lint clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -16,15 +16,18 @@ demo: $(STAMP)
 	.venv/bin/supportnet demo --out demo_out --overwrite
 
 test: $(STAMP)
-	.venv/bin/ruff check calib supportnet train export tests
+	.venv/bin/ruff check calib supportnet train export tests benchmarks
 	$(PY) -m pytest -q
 
 test-all: $(STAMP)
 	$(PY) -m pytest -q -m ''
 
+bench: $(STAMP)
+	$(PY) benchmarks/bench_synth.py
+
 lint: $(STAMP)
-	.venv/bin/ruff check calib supportnet train export tests
-	.venv/bin/ruff format --check calib supportnet train export tests
+	.venv/bin/ruff check calib supportnet train export tests benchmarks
+	.venv/bin/ruff format --check calib supportnet train export tests benchmarks
 
 clean:
 	rm -rf .venv demo_out .pytest_cache

@@ -10,10 +10,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+import torch
 
 from calib.data.kitti_odometry import KittiOdometryWriter
 from calib.data.types import Calibration, Frame
+from calib.geometry import perturb
 from calib.synth.config import ExtrinsicConfig, SynthConfig
 from calib.synth.raycast import Raycaster
 from calib.synth.render import Camera, Lidar
@@ -28,22 +29,19 @@ RIGID_CLASSES = {10, 50, 51, 52, 71, 80, 81, 99}
 
 def reference_extrinsic(config: ExtrinsicConfig, rng: np.random.Generator) -> np.ndarray:
     """The sequence's ground-truth ``T_cam_lidar``: the nominal mounting (camera looking along the
-    LiDAR's x axis, tilted down by ``camera_pitch_deg``) moved by a seeded deviation of
+    LiDAR's x axis, tilted down by ``camera_pitch_deg``) composed with a seeded deviation of
     ``jitter_cm`` · U(0.5, 1) in a random direction and ``jitter_deg`` · U(0.5, 1) about a random
-    axis, so no two sequences share an extrinsic."""
+    axis (its calibration error against the nominal), so no two sequences share an extrinsic."""
     pitch = np.radians(config.camera_pitch_deg)
     z_cam = np.array([np.cos(pitch), 0.0, -np.sin(pitch)])  # optical axis, in the LiDAR frame
     x_cam = np.array([0.0, -1.0, 0.0])
     T_lidar_cam = np.eye(4)
     T_lidar_cam[:3, :3] = np.column_stack([x_cam, np.cross(z_cam, x_cam), z_cam])
     T_lidar_cam[:3, 3] = config.camera_position_m
-    T = np.linalg.inv(T_lidar_cam)
-    axis, direction = rng.normal(size=3), rng.normal(size=3)
-    angle = np.radians(config.jitter_deg) * rng.uniform(0.5, 1.0)
-    delta = np.eye(4)
-    delta[:3, :3] = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
-    delta[:3, 3] = config.jitter_cm / 100 * rng.uniform(0.5, 1.0) * direction / np.linalg.norm(direction)
-    return delta @ T
+    generator = torch.Generator().manual_seed(int(rng.integers(2**31)))
+    size = rng.uniform(0.5, 1.0, 2)
+    return perturb(np.linalg.inv(T_lidar_cam), config.jitter_cm * size[0], config.jitter_deg * size[1],
+                   generator)
 
 
 @dataclass(frozen=True)

@@ -90,3 +90,35 @@ def test_demo_refuses_to_overwrite(tmp_path):
     result = run_cli("demo", "--out", tmp_path / "out")
     assert result.returncode == 2
     assert "already exists; pass --overwrite" in result.stderr
+
+
+def test_synth_writes_a_sequence_info_reads_and_refuses_to_overwrite(tmp_path):
+    config = tmp_path / "tiny.yaml"
+    config.write_text(
+        "world: urban\ncamera: {width: 160, height: 48, fx: 92.5, fy: 92.5, cx: 78.0, cy: 22.0}\n"
+        "lidar: {beams: 16, azimuth_step_deg: 1.0}\n"
+    )
+    args = ("synth", "--world", "urban", "--frames", "2", "--seed", "3", "--out", tmp_path / "data",
+            "--sequence", "07", "--config", config)
+    result = run_cli(*args)
+    assert result.returncode == 0, result.stderr
+    seq = tmp_path / "data" / "sequences" / "07"
+    names = {p.name for p in seq.iterdir()}
+    assert {"calib.txt", "times.txt", "meta.json", "classes.json", "config.yaml"} <= names
+    assert len(list((seq / "image_labels").iterdir())) == 2
+    assert (tmp_path / "data" / "poses" / "07.txt").is_file()
+    info = run_cli("info", tmp_path / "data", "--sequence", "07")
+    assert info.returncode == 0 and "road" in info.stdout, info.stdout
+    again = run_cli(*args)
+    assert again.returncode == 2 and "already exists" in again.stderr and "Traceback" not in again.stderr
+    assert [p.name for p in (tmp_path / "data").iterdir() if p.name.startswith(".")] == []
+
+
+def test_synth_config_typo_is_one_line_error(tmp_path):
+    config = tmp_path / "typo.yaml"
+    config.write_text("world: vineyard\ntiming: {camera_ofset_s: 0.1}\n")
+    out = tmp_path / "d"
+    result = run_cli("synth", "--world", "vineyard", "--frames", "1", "--out", out, "--config", config)
+    assert result.returncode == 2
+    assert "timing.camera_ofset_s" in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "d" / "sequences").exists()

@@ -1,0 +1,70 @@
+"""LiDAR odometry with KISS-ICP, and the drift of a trajectory against ground truth."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+__all__ = ["drift", "lidar_odometry"]
+
+
+def lidar_odometry(
+    scans: Iterable[np.ndarray],
+    point_times: Iterable[np.ndarray | None] | None = None,
+    max_range_m: float = 100.0,
+    min_range_m: float = 2.0,
+    voxel_size_m: float | None = None,
+) -> np.ndarray:
+    """Poses ``T_lidar0_lidar`` of each scan relative to the first, by KISS-ICP.
+
+    Args:
+        scans: ``(N, 3+)`` point clouds in the LiDAR frame, in time order.
+        point_times: optional per-point times per scan (KISS-ICP deskews with them).
+        voxel_size_m: map voxel size; KISS-ICP's default is ``max_range / 100``.
+
+    Returns:
+        ``(F, 4, 4)``; the first is the identity.
+    """
+    from kiss_icp.config import KISSConfig
+    from kiss_icp.kiss_icp import KissICP
+
+    config = KISSConfig()
+    config.data.max_range, config.data.min_range = max_range_m, min_range_m
+    config.data.deskew = point_times is not None
+    config.mapping.voxel_size = voxel_size_m or max_range_m / 100.0
+    odometry = KissICP(config)
+    times = iter(point_times) if point_times is not None else None
+    poses = []
+    for scan in scans:
+        t = next(times) if times is not None else None
+        stamps = np.zeros(len(scan)) if t is None else (t - t.min()) / max(np.ptp(t), 1e-9)
+        odometry.register_frame(np.asarray(scan[:, :3], dtype=np.float64), stamps)
+        poses.append(odometry.last_pose.copy())
+    return np.stack(poses)
+
+
+def drift(estimate: np.ndarray, reference: np.ndarray) -> dict[str, float]:
+    """End-point drift of a trajectory against ground truth, both taken relative to their first pose.
+
+    Args:
+        estimate, reference: ``(F, 4, 4)`` poses.
+
+    Returns:
+        ``path_m`` (ground-truth length), ``end_error_m``, ``drift_percent`` (end error over path
+        length), ``rotation_drift_deg`` (end rotation error) and ``mean_error_m`` (mean position
+        error over all frames).
+    """
+    est = np.linalg.inv(estimate[0]) @ estimate
+    ref = np.linalg.inv(reference[0]) @ reference
+    path = float(np.linalg.norm(np.diff(ref[:, :3, 3], axis=0), axis=1).sum())
+    errors = np.linalg.norm(est[:, :3, 3] - ref[:, :3, 3], axis=1)
+    R = est[-1, :3, :3].T @ ref[-1, :3, :3]
+    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
+    return {
+        "path_m": path,
+        "end_error_m": float(errors[-1]),
+        "drift_percent": float(100 * errors[-1] / path) if path > 0 else float("nan"),
+        "rotation_drift_deg": float(angle),
+        "mean_error_m": float(errors.mean()),
+    }

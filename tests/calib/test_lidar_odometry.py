@@ -1,0 +1,31 @@
+import numpy as np
+import pytest
+
+from calib.lidar_odometry import drift, lidar_odometry
+from calib.synth.config import load_synth_config
+from calib.synth.generate import Synthesizer
+
+
+def _line(n, step):
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = step * np.arange(n)
+    return T
+
+
+def test_drift_known_answers():
+    ref = _line(11, 1.0)
+    assert drift(ref, ref)["drift_percent"] == pytest.approx(0.0)
+    result = drift(_line(11, 1.1), ref)  # 10% too long a step
+    assert result["path_m"] == pytest.approx(10.0)
+    assert result["end_error_m"] == pytest.approx(1.0) and result["drift_percent"] == pytest.approx(10.0)
+    moved = ref.copy()
+    moved[:, :3, 3] += [5.0, 1.0, 0.0]  # another origin: drift is taken relative to the first pose
+    assert drift(moved, ref)["end_error_m"] == pytest.approx(0.0)
+
+
+def test_kiss_icp_follows_the_synthetic_street():
+    synth = Synthesizer(load_synth_config("urban"), 12, seed=4)
+    scans = [item.frame.points for item in synth.frames(workers=2)]
+    result = drift(lidar_odometry(scans, max_range_m=60.0, voxel_size_m=0.6), synth.lidar_poses())
+    assert result["path_m"] > 8.0
+    assert result["drift_percent"] < 5.0 and result["rotation_drift_deg"] < 1.0
