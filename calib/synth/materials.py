@@ -123,7 +123,8 @@ def surface(material: np.ndarray, points: np.ndarray, normals: np.ndarray, insta
         if m.pattern == "facade":
             c = np.where(mask[:, None], np.asarray(m.color2) * 0.15 + 0.04, c * (0.8 + 0.4 * w))
         elif m.pattern == "ground":
-            bare = (1 - w) * np.asarray(MATERIALS[_INDEX["soil"]].color) + w * 0.3
+            soil = MATERIALS[_INDEX["soil"]]
+            bare = (1 - w) * np.asarray(soil.color) + w * np.asarray(soil.color2)
             c = np.where(mask[:, None], bare, c)
         # Fine grain (a few centimetres) so every surface carries trackable texture
         rgb[sel] = c * (0.75 + 0.5 * value_noise(p, 0.03, seed + 7))[:, None]
@@ -139,6 +140,7 @@ def sky(directions: np.ndarray, sun: np.ndarray, seed: int = 0) -> np.ndarray:
     glow = np.clip(directions @ sun, 0.0, 1.0) ** 64
     plane = directions[:, :2] / np.maximum(up, 0.05)[:, None] * 500.0
     cloud = np.clip((fbm(np.column_stack([plane, np.zeros(len(plane))]), 400.0, 3, seed) - 0.5) * 3, 0, 1)
+    cloud *= np.clip((up - 0.03) / 0.12, 0, 1)  # fade out towards the horizon, where they would smear
     rgb = rgb * (1 - cloud[:, None]) + 0.95 * cloud[:, None]
     return rgb + glow[:, None] * 0.5
 
