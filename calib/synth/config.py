@@ -54,6 +54,13 @@ class ExtrinsicConfig(_Strict):
     jitter_deg: float = Field(1.0, ge=0)
 
 
+class TerrainConfig(_Strict):
+    """Rolling ground: slopes of about 2π · amplitude / wavelength radians roll and pitch the vehicle."""
+
+    amplitude_m: float = Field(0.5, ge=0)
+    wavelength_m: float = Field(22.0, gt=1)
+
+
 class DriveConfig(_Strict):
     speed_mps: float = Field(1.2, gt=0)
     sensor_height_m: float = Field(1.4, gt=0, description="LiDAR above the ground")
@@ -75,8 +82,6 @@ class VineyardLayout(_Strict):
     pipe_height_m: float = Field(0.4, gt=0)
     leaves_per_shoot: int = Field(14, ge=0)
     leaf_size_m: float = Field(0.12, gt=0)
-    terrain_amplitude_m: float = Field(0.5, ge=0)
-    terrain_wavelength_m: float = Field(22.0, gt=1)
 
 
 class UrbanLayout(_Strict):
@@ -91,8 +96,6 @@ class UrbanLayout(_Strict):
     moving_cars: int = Field(6, ge=0)
     moving_speed_mps: tuple[float, float] = (6.0, 11.0)
     tree_spacing_m: float = Field(14.0, gt=2)
-    terrain_amplitude_m: float = Field(0.8, ge=0)
-    terrain_wavelength_m: float = Field(70.0, gt=1)
 
 
 class SynthConfig(_Strict):
@@ -106,6 +109,7 @@ class SynthConfig(_Strict):
     light: LightConfig = LightConfig()
     extrinsic: ExtrinsicConfig = ExtrinsicConfig()
     drive: DriveConfig = DriveConfig()
+    terrain: TerrainConfig = TerrainConfig()
     vineyard: VineyardLayout = VineyardLayout()
     urban: UrbanLayout = UrbanLayout()
 

@@ -70,8 +70,7 @@ class Synthesizer:
         self.T_cam_lidar = reference_extrinsic(config.extrinsic, rng)
         travel = frames / config.timing.rate_hz * config.drive.speed_mps
         build = build_vineyard if config.world == "vineyard" else build_urban
-        layout = config.vineyard if config.world == "vineyard" else config.urban
-        self.world: World = build(layout, config.drive, travel, rng)
+        self.world: World = build(config, travel, rng)
         self.calibration = Calibration(K=config.camera.K, T_cam_lidar=self.T_cam_lidar,
                                        image_size=(config.camera.height, config.camera.width),
                                        source=f"synthetic {config.world} seed {seed}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.synth.config import DriveConfig, UrbanLayout
+from calib.synth.config import DriveConfig, SynthConfig, UrbanLayout
 from calib.synth.materials import material_id
 from calib.synth.path import Path, vehicle_poses
 from calib.synth.raycast import Mesh
@@ -57,9 +57,10 @@ def _straight(path: Path, s: float, half_window: float = 6.0) -> bool:
     return abs(heading[1] - heading[0]) < 0.05
 
 
-def build_urban(layout: UrbanLayout, drive: DriveConfig, travel_m: float, rng: np.random.Generator) -> World:
+def build_urban(config: SynthConfig, travel_m: float, rng: np.random.Generator) -> World:
     """A street long enough for a drive of ``travel_m`` metres."""
-    terrain = Terrain(layout.terrain_amplitude_m, layout.terrain_wavelength_m, rng)
+    terrain = Terrain(config.terrain.amplitude_m, config.terrain.wavelength_m, rng)
+    layout, drive = config.urban, config.drive
     path = _streets(layout, drive, BEHIND_M + travel_m + AHEAD_M, rng)
     lane, park, walk, kerb = layout.lane_width_m, layout.parking_width_m, layout.sidewalk_width_m, \
         layout.kerb_height_m

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.synth.config import DriveConfig, VineyardLayout
+from calib.synth.config import DriveConfig, SynthConfig, VineyardLayout
 from calib.synth.materials import material_id
 from calib.synth.path import Path, vehicle_poses
 from calib.synth.raycast import Mesh
@@ -101,10 +101,10 @@ def _shed(terrain: Terrain, centre_xy: np.ndarray, instance: int) -> Mesh:
                         Mesh.of((v, f), material_id("roof"), 50, instance)])
 
 
-def build_vineyard(layout: VineyardLayout, drive: DriveConfig, travel_m: float,
-                   rng: np.random.Generator) -> World:
+def build_vineyard(config: SynthConfig, travel_m: float, rng: np.random.Generator) -> World:
     """A vineyard large enough for a drive of ``travel_m`` metres."""
-    terrain = Terrain(layout.terrain_amplitude_m, layout.terrain_wavelength_m, rng)
+    terrain = Terrain(config.terrain.amplitude_m, config.terrain.wavelength_m, rng)
+    layout, drive = config.vineyard, config.drive
     path, gaps = _serpentine(layout, drive, travel_m + 10.0)
     rows = np.arange(-1, gaps + 2) * layout.row_spacing_m
     static, foliage = [], []
