@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from calib.labels import LabelAgreement, label_agreement
+from calib.labels import sequence_label_agreement
 from calib.lidar_odometry import drift, lidar_odometry
 from calib.synth.config import load_synth_config
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, write_sequence
@@ -42,10 +42,7 @@ def agreement(world: str, frames: int, condition: str) -> dict[str, float]:
         "windy": {"wind": {"amplitude_m": 3 * default.wind.amplitude_m}, "timing": {"camera_offset_s": 0.05}},
     }[condition]
     synth = Synthesizer(load_synth_config(world, **overrides), frames, seed=11)
-    total = LabelAgreement()
-    for item in synth.frames(workers=2):
-        f = item.frame
-        total.add(label_agreement(f.points, f.labels, f.image_labels, synth.T_cam_lidar, synth.calibration.K))
+    total = sequence_label_agreement(item.frame for item in synth.frames(workers=2))
     return {"rigid": total.rate(RIGID_CLASSES), "foliage": total.rate({70}),
             "rigid_points": sum(total.totals.get(c, 0) for c in RIGID_CLASSES)}
 

@@ -3,13 +3,15 @@ synthetic data, and a sanity check of any dataset that has both (SemanticKITTI w
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.data.types import Frame
 from calib.projection import Visibility, project_scan
 
-__all__ = ["LabelAgreement", "label_agreement"]
+__all__ = ["LabelAgreement", "label_agreement", "sequence_label_agreement"]
 
 
 @dataclass
@@ -66,3 +68,15 @@ def label_agreement(
         result.totals[int(c)] = int(m.sum())
         result.hits[int(c)] = int(agree[m].sum())
     return result
+
+
+def sequence_label_agreement(
+    frames: Iterable[Frame], T_cam_lidar: np.ndarray | None = None
+) -> LabelAgreement:
+    """:func:`label_agreement` summed over frames that carry point and pixel labels, under
+    ``T_cam_lidar`` (default: each frame's reference extrinsic)."""
+    total = LabelAgreement()
+    for f in frames:
+        T = f.calibration.T_cam_lidar if T_cam_lidar is None else T_cam_lidar
+        total.add(label_agreement(f.points, f.labels, f.image_labels, T, f.calibration.K))
+    return total

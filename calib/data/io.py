@@ -18,6 +18,7 @@ from calib.errors import DataError
 
 __all__ = [
     "format_kv_line",
+    "format_row",
     "lzf_decompress",
     "read_image",
     "read_kv_file",
@@ -349,9 +350,14 @@ def read_kv_file(path: Path) -> dict[str, np.ndarray | str]:
     return result
 
 
+def format_row(values: np.ndarray) -> str:
+    """Numbers as one space-separated line, at full precision (KITTI calibration and pose files)."""
+    return " ".join(f"{v:.12e}" for v in np.asarray(values, dtype=np.float64).reshape(-1)) + "\n"
+
+
 def format_kv_line(key: str, values: np.ndarray) -> str:
     """One ``key: v1 v2 ...`` line of a KITTI calibration file (the inverse of :func:`read_kv_file`)."""
-    return f"{key}: " + " ".join(f"{v:.12e}" for v in np.asarray(values, dtype=np.float64).reshape(-1)) + "\n"
+    return f"{key}: " + format_row(values)
 
 
 def kv_matrix(values: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndarray:

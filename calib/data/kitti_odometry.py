@@ -20,6 +20,7 @@ from calib.data.io import (
     SCAN_SUFFIXES,
     atomic_write_text,
     format_kv_line,
+    format_row,
     kv_matrix,
     read_kv_file,
     write_bin,
@@ -162,7 +163,7 @@ class KittiOdometryWriter:
             Tr = self.calibration.T_cam_lidar
             T_w_cam0 = Tr @ np.asarray(poses_lidar) @ np.linalg.inv(Tr)
             (self.root / "poses").mkdir(parents=True, exist_ok=True)
-            rows = "".join(" ".join(f"{v:.12e}" for v in T[:3, :].reshape(-1)) + "\n" for T in T_w_cam0)
+            rows = "".join(format_row(T[:3, :]) for T in T_w_cam0)
             atomic_write_text(self.root / "poses" / f"{self.sequence}.txt", rows)
         return self.seq_dir
 

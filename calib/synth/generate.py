@@ -85,35 +85,31 @@ class Synthesizer:
             self._static = Raycaster([self.world.static])
         return self._static
 
-    def lidar_time(self, i: int) -> float:
-        return i / self.config.timing.rate_hz
-
     def lidar_poses(self) -> np.ndarray:
         """``(frames, 4, 4)`` ground-truth ``T_world_lidar`` at each scan's stamp."""
-        return self.world.drive.lidar_poses(np.array([self.lidar_time(i) for i in range(self.n_frames)]))
+        return self.world.drive.lidar_poses(np.arange(self.n_frames) / self.config.timing.rate_hz)
 
     def render(self, i: int) -> SyntheticFrame:
         """Frame ``i``: the LiDAR sweeps at ``t_L = i / rate``, the camera exposes at
         ``t_L + camera_offset_s``; moving leaves and cars are where they are at each time."""
         timing, wind = self.config.timing, self.config.wind
         rng = np.random.default_rng([self.seed, i])
-        t_lidar = self.lidar_time(i)
+        t_lidar = i / timing.rate_hz
         t_cam = t_lidar + timing.camera_offset_s
         drive = self.world.drive
         T_world_cam = drive.lidar_poses(np.array([t_cam]))[0] @ np.linalg.inv(self.T_cam_lidar)
         image, image_labels = self.camera.render(self.static.plus(self.world.dynamic(t_cam, wind)),
                                                  T_world_cam, rng)
-        if timing.motion_distortion:
-            T_world_lidar = drive.lidar_poses(t_lidar + self.lidar.times[: self.lidar.azimuth_steps])
-        else:
-            T_world_lidar = drive.lidar_poses(np.array([t_lidar]))[0]
-        scan = self.lidar.scan(self.static.plus(self.world.dynamic(t_lidar, wind)), T_world_lidar, rng)
+        T_stamp = drive.lidar_poses(np.array([t_lidar]))[0]
+        # With motion distortion each azimuth column is cast from the pose at its own time
+        T_beams = drive.lidar_poses(t_lidar + self.lidar.times[: self.lidar.azimuth_steps]) \
+            if timing.motion_distortion else T_stamp
+        scan = self.lidar.scan(self.static.plus(self.world.dynamic(t_lidar, wind)), T_beams, rng)
         frame = Frame(image=image, points=scan.points, calibration=self.calibration, index=i,
                       name=f"{i:06d}", timestamp=t_cam, lidar_timestamp=t_lidar, labels=scan.labels,
                       image_labels=image_labels,
                       point_times=scan.times if timing.motion_distortion else None)
-        pose = T_world_lidar if T_world_lidar.ndim == 2 else drive.lidar_poses(np.array([t_lidar]))[0]
-        return SyntheticFrame(frame, scan.instance, pose)
+        return SyntheticFrame(frame, scan.instance, T_stamp)
 
     def frames(self, workers: int = 1) -> Iterator[SyntheticFrame]:
         """Every frame in order; ``workers > 1`` renders them in that many forked processes

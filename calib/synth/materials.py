@@ -59,6 +59,8 @@ MATERIALS: tuple[Material, ...] = (
 )
 
 _INDEX = {m.name: i for i, m in enumerate(MATERIALS)}
+_SOIL = MATERIALS[_INDEX["soil"]]  # bare patches in grass look and reflect like soil
+_GLASS_REFLECTANCE = 0.03  # facade windows: most of the beam passes or mirrors away
 
 # A small palette for per-instance colours (car paint, signs, walls)
 _PAINT = np.array([
@@ -110,7 +112,8 @@ def surface(material: np.ndarray, points: np.ndarray, normals: np.ndarray, insta
         p, n, inst = points[sel], normals[sel], instance[sel]
         mask = _windows(m, p, n) if m.pattern == "facade" else (
             _bare_soil(m, p, seed) if m.pattern == "ground" else np.zeros(len(p), bool))
-        reflectance[sel] = np.where(mask, 0.03 if m.pattern == "facade" else 0.25, m.reflectance)
+        reflectance[sel] = np.where(mask, _GLASS_REFLECTANCE if m.pattern == "facade" else _SOIL.reflectance,
+                                    m.reflectance)
         if not color:
             continue
         q = p * (1.0, 1.0, 0.15) if m.pattern == "streaks" else p
@@ -123,8 +126,7 @@ def surface(material: np.ndarray, points: np.ndarray, normals: np.ndarray, insta
         if m.pattern == "facade":
             c = np.where(mask[:, None], np.asarray(m.color2) * 0.15 + 0.04, c * (0.8 + 0.4 * w))
         elif m.pattern == "ground":
-            soil = MATERIALS[_INDEX["soil"]]
-            bare = (1 - w) * np.asarray(soil.color) + w * np.asarray(soil.color2)
+            bare = (1 - w) * np.asarray(_SOIL.color) + w * np.asarray(_SOIL.color2)
             c = np.where(mask[:, None], bare, c)
         # Fine grain (a few centimetres) so every surface carries trackable texture
         rgb[sel] = c * (0.75 + 0.5 * value_noise(p, 0.03, seed + 7))[:, None]

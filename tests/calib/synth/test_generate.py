@@ -11,7 +11,7 @@ import torch
 from calib.data import open_dataset
 from calib.errors import DataError
 from calib.geometry import calibration_error, perturb
-from calib.labels import LabelAgreement, label_agreement
+from calib.labels import sequence_label_agreement
 from calib.synth.config import ExtrinsicConfig, load_synth_config
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, reference_extrinsic, write_sequence
 
@@ -47,17 +47,12 @@ def test_unknown_key_in_a_world_config_fails_loudly(tmp_path):
 @pytest.mark.parametrize("world", ["vineyard", "urban"])
 def test_ground_truth_labels_agree_at_a_still_moment(world):
     synth = Synthesizer(small(world, wind={"amplitude_m": 0.0}, timing={"camera_offset_s": 0.0}), 3, seed=5)
-    total = LabelAgreement()
-    for item in synth.frames():
-        f = item.frame
-        total.add(label_agreement(f.points, f.labels, f.image_labels, synth.T_cam_lidar, synth.calibration.K))
+    frames = [item.frame for item in synth.frames()]
+    total = sequence_label_agreement(frames)
     assert total.rate(RIGID_CLASSES) >= 0.95
     # A wrong extrinsic (2° off) breaks the agreement: the check can fail
     wrong = perturb(synth.T_cam_lidar, 0.0, 2.0, torch.Generator().manual_seed(0))
-    off = LabelAgreement()
-    for item in synth.frames():
-        f = item.frame
-        off.add(label_agreement(f.points, f.labels, f.image_labels, wrong, synth.calibration.K))
+    off = sequence_label_agreement(frames, wrong)
     assert off.rate(RIGID_CLASSES) < total.rate(RIGID_CLASSES) - 0.05
 
 
@@ -66,12 +61,7 @@ def test_wind_and_time_offset_lower_foliage_agreement():
     for amplitude, offset in ((0.0, 0.0), (0.3, 0.1)):
         synth = Synthesizer(small("vineyard", wind={"amplitude_m": amplitude},
                                   timing={"camera_offset_s": offset}), 2, seed=2)
-        total = LabelAgreement()
-        for item in synth.frames():
-            f = item.frame
-            total.add(label_agreement(f.points, f.labels, f.image_labels, synth.T_cam_lidar,
-                                      synth.calibration.K))
-        rates.append(total.rate({70}))
+        rates.append(sequence_label_agreement(item.frame for item in synth.frames()).rate({70}))
     assert rates[1] < rates[0] - 0.02
 
 
