@@ -32,15 +32,23 @@ class EdgeMatcherConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     working_focal_px: float = Field(
-        360.0, gt=0, description="images with a longer focal length are resampled down to it, so the "
-        "pixel parameters below mean the same angles on every camera (KITTI at half resolution)")
+        360.0,
+        gt=0,
+        description="images with a longer focal length are resampled down to it, so the "
+        "pixel parameters below mean the same angles on every camera (KITTI at half resolution)",
+    )
     fill_radius_deg: float = Field(
-        0.35, gt=0, description="a pixel farther than this from every return is 'no return' (sky) "
-        "when the LiDAR looks there; just over half the ring spacing")
+        0.35,
+        gt=0,
+        description="a pixel farther than this from every return is 'no return' (sky) "
+        "when the LiDAR looks there; just over half the ring spacing",
+    )
     far_depth_m: float = Field(200.0, gt=0, description="depth given to no-return pixels")
     depth_edge_px: tuple[float, float] = Field(
-        (0.04, 0.2), description="|∇ log depth| per pixel where a depth edge starts and is full "
-        "(ground seen at a grazing angle stays below the start)")
+        (0.04, 0.2),
+        description="|∇ log depth| per pixel where a depth edge starts and is full "
+        "(ground seen at a grazing angle stays below the start)",
+    )
     intensity_edge_px: float = Field(0.08, gt=0, description="|∇ intensity| per pixel of a full edge")
     intensity_weight: float = Field(0.5, ge=0, description="intensity edges relative to depth edges")
     image_blur_px: float = Field(1.0, ge=0, description="Gaussian σ before the image gradient")
@@ -50,11 +58,16 @@ class EdgeMatcherConfig(BaseModel):
     refine_radius: int = Field(2, ge=1, description="search radius at each finer level")
     window: int = Field(21, ge=3, description="aggregation window (odd, pixels of each level)")
     smooth_window: int = Field(
-        91, ge=1, description="window of the final local flow model a + b/z, fitted to "
-        "the confidence-weighted estimates (odd)")
+        91,
+        ge=1,
+        description="window of the final local flow model a + b/z, fitted to "
+        "the confidence-weighted estimates (odd)",
+    )
     min_signal: float = Field(
-        0.05, ge=0, description="a point gets a residual when the mean LiDAR edge strength in its "
-        "window reaches this")
+        0.05,
+        ge=0,
+        description="a point gets a residual when the mean LiDAR edge strength in its window reaches this",
+    )
     sharpness_scale: float = Field(0.02, gt=0, description="peak curvature giving confidence 1/2")
 
     def model_post_init(self, __context: object) -> None:
@@ -96,8 +109,13 @@ def image_edges(image: np.ndarray, config: EdgeMatcherConfig = EdgeMatcherConfig
     return _orientation_field(gx, gy, m**2 / (m**2 + c**2))
 
 
-def _lidar_sees(points_lidar: np.ndarray, T_cam_lidar: np.ndarray, K: np.ndarray,
-                image_size: tuple[int, int], margin_deg: float) -> np.ndarray:
+def _lidar_sees(
+    points_lidar: np.ndarray,
+    T_cam_lidar: np.ndarray,
+    K: np.ndarray,
+    image_size: tuple[int, int],
+    margin_deg: float,
+) -> np.ndarray:
     """``(H, W)`` bool: pixels whose ray lies within the scan's elevation range (seen from the
     LiDAR), where a missing return means open sky rather than a pixel outside the LiDAR's view."""
     xyz = points_lidar[::7, :3].astype(np.float64)  # a subsample bounds the elevation range
@@ -113,8 +131,13 @@ def _lidar_sees(points_lidar: np.ndarray, T_cam_lidar: np.ndarray, K: np.ndarray
     return (ray_elevation < top - margin_deg) & (ray_elevation > bottom + margin_deg)
 
 
-def lidar_edges(scan: ProjectedScan, points_lidar: np.ndarray, T_cam_lidar: np.ndarray,
-                K: np.ndarray, config: EdgeMatcherConfig = EdgeMatcherConfig()) -> np.ndarray:
+def lidar_edges(
+    scan: ProjectedScan,
+    points_lidar: np.ndarray,
+    T_cam_lidar: np.ndarray,
+    K: np.ndarray,
+    config: EdgeMatcherConfig = EdgeMatcherConfig(),
+) -> tuple[np.ndarray, np.ndarray]:
     """Orientation field of a projected scan: depth and intensity edges between returns.
 
     Every pixel takes the depth and intensity of its nearest visible return (a Voronoi fill, so
@@ -185,7 +208,9 @@ def _downsample(x: np.ndarray) -> np.ndarray:
     _, H, W = x.shape
     blurred = np.stack([cv2.GaussianBlur(c, (5, 5), 1.0, borderType=cv2.BORDER_REPLICATE) for c in x])
     padded = np.pad(blurred, ((0, 0), (0, H % 2), (0, W % 2)), mode="edge")
-    return 0.25 * (padded[:, 0::2, 0::2] + padded[:, 1::2, 0::2] + padded[:, 0::2, 1::2] + padded[:, 1::2, 1::2])
+    return 0.25 * (
+        padded[:, 0::2, 0::2] + padded[:, 1::2, 0::2] + padded[:, 0::2, 1::2] + padded[:, 1::2, 1::2]
+    )
 
 
 def _correlate(lidar: torch.Tensor, image: torch.Tensor, radius: int) -> torch.Tensor:
@@ -194,8 +219,9 @@ def _correlate(lidar: torch.Tensor, image: torch.Tensor, radius: int) -> torch.T
     _, H, W = lidar.shape
     padded = F.pad(image, (radius, radius, radius, radius))
     n = 2 * radius + 1
-    return torch.stack([(lidar * padded[:, dv:dv + H, du:du + W]).sum(0)
-                        for dv in range(n) for du in range(n)])
+    return torch.stack(
+        [(lidar * padded[:, dv : dv + H, du : du + W]).sum(0) for dv in range(n) for du in range(n)]
+    )
 
 
 def _normalised_cost(lidar: torch.Tensor, image: torch.Tensor, radius: int, window: int) -> torch.Tensor:
@@ -239,8 +265,9 @@ def _peak(cost: torch.Tensor, radius: int) -> tuple[torch.Tensor, torch.Tensor, 
     return torch.stack(offsets), peak, curvatures[0], curvatures[1]
 
 
-def _depth_model_fit(flow: torch.Tensor, weight: torch.Tensor, inverse_depth: torch.Tensor, window: int,
-                     ridge: float = 1e-4) -> torch.Tensor:
+def _depth_model_fit(
+    flow: torch.Tensor, weight: torch.Tensor, inverse_depth: torch.Tensor, window: int, ridge: float = 1e-4
+) -> torch.Tensor:
     """Per pixel, the weighted least-squares fit of ``f(y) = a + b / z(y)`` to the flow estimates
     in a window around it, evaluated at the pixel.
 
@@ -266,8 +293,9 @@ def _depth_model_fit(flow: torch.Tensor, weight: torch.Tensor, inverse_depth: to
     return mean_f + b * (q - mean_q)
 
 
-def _confidence(peak: torch.Tensor, curv_u: torch.Tensor, curv_v: torch.Tensor, signal: torch.Tensor,
-                scale: float) -> torch.Tensor:
+def _confidence(
+    peak: torch.Tensor, curv_u: torch.Tensor, curv_v: torch.Tensor, signal: torch.Tensor, scale: float
+) -> torch.Tensor:
     """``(H, W)`` in [0, 1]: the share of the window's LiDAR edge energy the peak aligns with image
     edges, times the peak's sharpness in its flattest direction (zero on a single straight edge,
     where the aperture problem leaves the displacement along the edge undetermined)."""
@@ -285,8 +313,9 @@ class EdgeMatcher:
     def __init__(self, config: EdgeMatcherConfig = EdgeMatcherConfig()):
         self.config = config
 
-    def dense_flow(self, lidar: np.ndarray, image: np.ndarray, inverse_depth: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def dense_flow(
+        self, lidar: np.ndarray, image: np.ndarray, inverse_depth: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Coarse-to-fine search of the flow from the LiDAR field to the image field.
 
         Args:
@@ -300,7 +329,9 @@ class EdgeMatcher:
         cfg = self.config
         # zero-mean locally: a field constant over a window (ground seen at a grazing angle,
         # texture) correlates equally at every displacement and only flattens the peak
-        lidar, image = (np.stack([c - cv2.GaussianBlur(c, (0, 0), cfg.highpass_px) for c in x]) for x in (lidar, image))
+        lidar, image = (
+            np.stack([c - cv2.GaussianBlur(c, (0, 0), cfg.highpass_px) for c in x]) for x in (lidar, image)
+        )
         pyramid = [(lidar, image)]
         for _ in range(cfg.levels - 1):
             pyramid.append(tuple(_downsample(x) for x in pyramid[-1]))
@@ -309,7 +340,9 @@ class EdgeMatcher:
         for level in reversed(range(cfg.levels)):
             L, I = pyramid[level]
             if flow.shape[1:] != L.shape[1:]:
-                flow = 2 * F.interpolate(flow[None], size=L.shape[1:], mode="bilinear", align_corners=False)[0]
+                flow = (
+                    2 * F.interpolate(flow[None], size=L.shape[1:], mode="bilinear", align_corners=False)[0]
+                )
             radius = cfg.search_radius if level == cfg.levels - 1 else cfg.refine_radius
             cost = _normalised_cost(L, _warp(I, flow), radius, cfg.window)
             offset, peak, curv_u, curv_v = _peak(cost, radius)
@@ -323,8 +356,9 @@ class EdgeMatcher:
                 weight = confidence[None] + 1e-6
                 flow = flow + _box(weight * offset, cfg.window) / _box(weight, cfg.window)
             else:
-                flow = _depth_model_fit(flow + offset, confidence, torch.from_numpy(inverse_depth),
-                                        cfg.smooth_window)
+                flow = _depth_model_fit(
+                    flow + offset, confidence, torch.from_numpy(inverse_depth), cfg.smooth_window
+                )
         return flow.numpy(), signal.numpy(), confidence.numpy()
 
     def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
@@ -343,7 +377,11 @@ class EdgeMatcher:
         K = frame.K.copy()
         K[:2] *= s[:, None]
         K[:2, 2] += 0.5 * s - 0.5
-        image = frame.image if size == (H, W) else cv2.resize(frame.image, size[::-1], interpolation=cv2.INTER_AREA)
+        image = (
+            frame.image
+            if size == (H, W)
+            else cv2.resize(frame.image, size[::-1], interpolation=cv2.INTER_AREA)
+        )
         scan = project_scan(frame.points, T_cam_lidar, K, size, Visibility(window=3))
         lidar, inverse_depth = lidar_edges(scan, frame.points, T_cam_lidar, K, cfg)
         flow, signal, confidence = self.dense_flow(lidar, image_edges(image, cfg), inverse_depth)
@@ -353,5 +391,11 @@ class EdgeMatcher:
         uv = (scan.uv[keep] + 0.5) / s - 0.5
         residual = flow[:, r[keep], c[keep]].T / s
         points = np.asarray(frame.points, np.float64)[index, :3]
-        return Correspondences(index.astype(np.int64), points, uv, uv + residual,
-                               confidence[r[keep], c[keep]].astype(np.float32), (H, W))
+        return Correspondences(
+            index.astype(np.int64),
+            points,
+            uv,
+            uv + residual,
+            confidence[r[keep], c[keep]].astype(np.float32),
+            (H, W),
+        )

@@ -56,8 +56,12 @@ class Correspondences:
     def subset(self, mask: np.ndarray) -> Correspondences:
         """The correspondences selected by a boolean mask or an index array."""
         return Correspondences(
-            self.index[mask], self.points_lidar[mask], self.uv[mask], self.uv_matched[mask],
-            self.confidence[mask], self.image_size,
+            self.index[mask],
+            self.points_lidar[mask],
+            self.uv[mask],
+            self.uv_matched[mask],
+            self.confidence[mask],
+            self.image_size,
         )
 
 
