@@ -68,6 +68,32 @@ def info(
     raise typer.Exit(run_info(data, sequence, camera, check_all, Console()))
 
 
+class MatcherName(str, Enum):
+    edge = "edge"
+    flow = "flow"
+
+
+@app.command()
+def maps(
+    data: Annotated[Path, typer.Option(help="Dataset with a reference calibration.")],
+    out: Annotated[Path, typer.Option(help="Maps folder to write.")],
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    matcher: Annotated[
+        MatcherName | None, typer.Option(help="Stage 2 matcher (default: the config's).")
+    ] = None,
+    sigma: Annotated[float | None, typer.Option(help="σ of Eq. 2 in pixels (default: the config's).")] = None,
+    config: Annotated[Path | None, typer.Option(help="Maps config (default: configs/maps.yaml).")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Continue an interrupted run.")] = False,
+    overwrite: Overwrite = False,
+) -> None:
+    """Stage 3 offline: per-frame and whole-sequence support, coverage and agreement maps from
+    the matcher's residuals under the reference calibration (Eq. 2)."""
+    from supportnet.maps import load_maps_config, run_maps
+
+    cfg = load_maps_config(config, matcher=matcher.value if matcher else None, sigma_px=sigma)
+    run_maps(data, sequence, out, cfg, overwrite, resume)
+
+
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder.")] = Path("demo_out"),

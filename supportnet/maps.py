@@ -1,0 +1,151 @@
+"""``supportnet maps``: Stage 3 offline support maps of one sequence under its reference calibration.
+
+Writes ``frames/NNNNNN.npz`` (per-frame ``support``, ``coverage``, ``agreement``, the U-Net's
+training targets, and the raw sums), ``sequence.npz`` (the whole-sequence maps), PNG previews,
+``summary.json`` and the resolved ``config.yaml``. Work goes to ``<out>.partial`` and is renamed
+when complete; a run interrupted there resumes with ``--resume`` when its config is unchanged.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import yaml
+from matplotlib import colormaps
+from pydantic import BaseModel, ConfigDict
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from calib.config import read_yaml, validate
+from calib.data import open_dataset
+from calib.data.io import write_image
+from calib.edge_matcher import EdgeMatcher, EdgeMatcherConfig
+from calib.errors import DataError, SupportnetError
+from calib.support import SupportConfig, SupportMaps, support_maps
+from supportnet.outputs import write_json
+
+__all__ = ["MapsConfig", "load_maps_config", "run_maps"]
+
+DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "maps.yaml"
+
+
+class MapsConfig(BaseModel):
+    """``configs/maps.yaml``: the matcher and how its residuals become support."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    matcher: Literal["edge", "flow"] = "edge"
+    edge: EdgeMatcherConfig = EdgeMatcherConfig()
+    support: SupportConfig = SupportConfig()
+
+
+def load_maps_config(path: Path | None = None, **overrides: object) -> MapsConfig:
+    """The validated config from ``path`` (default ``configs/maps.yaml``) with top-level
+    ``overrides`` (``matcher``) and ``sigma_px`` applied to the support group."""
+    path = Path(path) if path is not None else DEFAULT_CONFIG
+    data = read_yaml(path)
+    sigma = overrides.pop("sigma_px", None)
+    data = {**data, **{k: v for k, v in overrides.items() if v is not None}}
+    if sigma is not None:
+        data["support"] = {**data.get("support", {}), "sigma_px": sigma}
+    return validate(MapsConfig, data, path)
+
+
+def _preview(image: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """The image above the map (viridis), stacked vertically."""
+    coloured = (colormaps["viridis"](np.clip(values, 0, 1))[..., :3] * 255).astype(np.uint8)
+    return np.concatenate([image, coloured], axis=0)
+
+
+def run_maps(
+    data: Path,
+    sequence: str | None,
+    out: Path,
+    config: MapsConfig,
+    overwrite: bool = False,
+    resume: bool = False,
+    console: Console | None = None,
+) -> Path:
+    """Match every frame under the reference calibration and accumulate support maps."""
+    console = console or Console(stderr=True)
+    out = Path(out)
+    if config.matcher == "flow":
+        raise SupportnetError("--matcher flow: the learned flow matcher is not built yet; use --matcher edge")
+    if out.exists() and not overwrite:
+        raise DataError(out, "already exists; pass --overwrite to replace it")
+    partial = out.with_name(out.name + ".partial")
+    resolved = yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
+    if partial.exists() and not (resume and (partial / "config.yaml").read_text() == resolved):
+        if resume:
+            raise DataError(partial, "was written with another config; remove it or run without --resume")
+        shutil.rmtree(partial)
+    (partial / "frames").mkdir(parents=True, exist_ok=True)
+    (partial / "previews").mkdir(exist_ok=True)
+    (partial / "config.yaml").write_text(resolved)
+    matcher = EdgeMatcher(config.edge)
+    start, matched, total = time.perf_counter(), 0, None
+    with open_dataset(data, sequence=sequence) as seq:
+        if seq.calibration.T_cam_lidar is None:
+            raise DataError(data, "has no reference calibration; offline support maps need one")
+        columns = (TextColumn(f"maps {seq.name}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+        with Progress(*columns, console=console, transient=True) as progress:
+            task = progress.add_task("maps", total=len(seq))
+            for i in range(len(seq)):
+                path = partial / "frames" / f"{i:06d}.npz"
+                if path.is_file():
+                    stored = np.load(path)
+                    maps = SupportMaps(stored["raw"], stored["coverage"], config.support.min_coverage)
+                else:
+                    frame = seq[i]
+                    corr = matcher.match(frame, frame.calibration.T_cam_lidar)
+                    maps = support_maps(corr, config.support)
+                    matched += len(corr)
+                    tmp = path.with_suffix(".tmp.npz")
+                    np.savez_compressed(
+                        tmp,
+                        raw=maps.raw.astype(np.float32),
+                        coverage=maps.coverage.astype(np.float32),
+                        support=maps.support,
+                        agreement=maps.agreement,
+                    )
+                    tmp.replace(path)
+                    write_image(partial / "previews" / f"{i:06d}.png", _preview(frame.image, maps.agreement))
+                total = maps if total is None else total + maps
+                progress.advance(task)
+    if total is None:
+        raise DataError(data, "holds no frames")
+    np.savez_compressed(
+        partial / "sequence.npz",
+        raw=total.raw,
+        coverage=total.coverage,
+        support=total.support,
+        agreement=total.agreement,
+    )
+    for name in ("support", "agreement"):
+        coloured = (colormaps["viridis"](getattr(total, name))[..., :3] * 255).astype(np.uint8)
+        write_image(partial / f"sequence_{name}.png", coloured)
+    seconds = time.perf_counter() - start
+    write_json(
+        partial / "summary.json",
+        {
+            "data": str(data),
+            "sequence": sequence,
+            "frames": len(seq),
+            "correspondences_matched_this_run": matched,
+            "runtime_s": seconds,
+        },
+    )
+    if out.exists():
+        shutil.rmtree(out)
+    partial.rename(out)
+    console.print(
+        f"wrote support maps of {len(seq)} frames to {out} in {seconds:.1f} s",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
+    return out
