@@ -390,7 +390,7 @@ class EdgeMatcher:
         index = scan.index[keep]
         uv = (scan.uv[keep] + 0.5) / s - 0.5
         residual = flow[:, r[keep], c[keep]].T / s
-        points = np.asarray(frame.points, np.float64)[index, :3]
+        points = frame.points[index, :3].astype(np.float64)
         return Correspondences(
             index.astype(np.int64),
             points,

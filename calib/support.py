@@ -130,6 +130,15 @@ class SupportMaps:
     def __add__(self, other: SupportMaps) -> SupportMaps:
         return SupportMaps(self.raw + other.raw, self.coverage + other.coverage, self.min_coverage)
 
+    def arrays(self, dtype: type = np.float64) -> dict[str, np.ndarray]:
+        """The raw sums (as ``dtype``) and the normalised maps, by name, for storing."""
+        return {
+            "raw": self.raw.astype(dtype),
+            "coverage": self.coverage.astype(dtype),
+            "support": self.support,
+            "agreement": self.agreement,
+        }
+
     @property
     def support(self) -> np.ndarray:
         """Eq. 2 normalised to [0, 1] by its maximum, ``(H, W)`` float32."""

@@ -15,7 +15,6 @@ from typing import Literal
 
 import numpy as np
 import yaml
-from matplotlib import colormaps
 from pydantic import BaseModel, ConfigDict
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -27,6 +26,7 @@ from calib.edge_matcher import EdgeMatcher, EdgeMatcherConfig
 from calib.errors import DataError, SupportnetError
 from calib.support import SupportConfig, SupportMaps, support_maps
 from supportnet.outputs import write_json
+from supportnet.viz import colourise
 
 __all__ = ["MapsConfig", "load_maps_config", "run_maps"]
 
@@ -57,8 +57,7 @@ def load_maps_config(path: Path | None = None, **overrides: object) -> MapsConfi
 
 def _preview(image: np.ndarray, values: np.ndarray) -> np.ndarray:
     """The image above the map (viridis), stacked vertically."""
-    coloured = (colormaps["viridis"](np.clip(values, 0, 1))[..., :3] * 255).astype(np.uint8)
-    return np.concatenate([image, coloured], axis=0)
+    return np.concatenate([image, colourise(values)], axis=0)
 
 
 def run_maps(
@@ -79,7 +78,9 @@ def run_maps(
         raise DataError(out, "already exists; pass --overwrite to replace it")
     partial = out.with_name(out.name + ".partial")
     resolved = yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
-    if partial.exists() and not (resume and (partial / "config.yaml").read_text() == resolved):
+    stored_config = partial / "config.yaml"
+    same_config = stored_config.is_file() and stored_config.read_text() == resolved
+    if partial.exists() and not (resume and same_config):
         if resume:
             raise DataError(partial, "was written with another config; remove it or run without --resume")
         shutil.rmtree(partial)
@@ -105,29 +106,16 @@ def run_maps(
                     maps = support_maps(corr, config.support)
                     matched += len(corr)
                     tmp = path.with_suffix(".tmp.npz")
-                    np.savez_compressed(
-                        tmp,
-                        raw=maps.raw.astype(np.float32),
-                        coverage=maps.coverage.astype(np.float32),
-                        support=maps.support,
-                        agreement=maps.agreement,
-                    )
+                    np.savez_compressed(tmp, **maps.arrays(np.float32))
                     tmp.replace(path)
                     write_image(partial / "previews" / f"{i:06d}.png", _preview(frame.image, maps.agreement))
                 total = maps if total is None else total + maps
                 progress.advance(task)
     if total is None:
         raise DataError(data, "holds no frames")
-    np.savez_compressed(
-        partial / "sequence.npz",
-        raw=total.raw,
-        coverage=total.coverage,
-        support=total.support,
-        agreement=total.agreement,
-    )
+    np.savez_compressed(partial / "sequence.npz", **total.arrays())
     for name in ("support", "agreement"):
-        coloured = (colormaps["viridis"](getattr(total, name))[..., :3] * 255).astype(np.uint8)
-        write_image(partial / f"sequence_{name}.png", coloured)
+        write_image(partial / f"sequence_{name}.png", colourise(getattr(total, name)))
     seconds = time.perf_counter() - start
     write_json(
         partial / "summary.json",

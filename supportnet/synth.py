@@ -19,9 +19,17 @@ from calib.synth.generate import Synthesizer, write_sequence
 __all__ = ["run_synth"]
 
 
-def run_synth(world: str, frames: int, seed: int, out: Path, sequence: str = "00",
-              config: Path | None = None, overwrite: bool = False, workers: int = 2,
-              console: Console | None = None) -> Path:
+def run_synth(
+    world: str,
+    frames: int,
+    seed: int,
+    out: Path,
+    sequence: str = "00",
+    config: Path | None = None,
+    overwrite: bool = False,
+    workers: int = 2,
+    console: Console | None = None,
+) -> Path:
     """Generate ``out/sequences/<sequence>`` (and ``out/poses/<sequence>.txt``) atomically.
 
     Other sequences already in ``out`` are kept, so several seeds can share one dataset root.
@@ -44,12 +52,15 @@ def run_synth(world: str, frames: int, seed: int, out: Path, sequence: str = "00
     out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".synth-{sequence}.", dir=out))
     try:
-        columns = (TextColumn(f"{world} seq {sequence}"), BarColumn(), MofNCompleteColumn(),
-                   TimeRemainingColumn())
+        columns = (
+            TextColumn(f"{world} seq {sequence}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+        )
         with Progress(*columns, console=console, transient=True) as progress:
             task = progress.add_task("render", total=frames)
-            written = write_sequence(synth, tmp, sequence, workers,
-                                     lambda n: progress.advance(task, n))
+            written = write_sequence(synth, tmp, sequence, workers, lambda n: progress.advance(task, n))
         (written / "config.yaml").write_text(yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))
         if seq_dir.exists():
             shutil.rmtree(seq_dir)
@@ -60,7 +71,11 @@ def run_synth(world: str, frames: int, seed: int, out: Path, sequence: str = "00
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     seconds = time.perf_counter() - start
-    console.print(f"wrote {frames} {world} frames (seed {seed}) to {seq_dir} "
-                  f"in {seconds:.1f} s ({frames / seconds:.1f} frames/s)", markup=False, highlight=False,
-                  soft_wrap=True)
+    console.print(
+        f"wrote {frames} {world} frames (seed {seed}) to {seq_dir} "
+        f"in {seconds:.1f} s ({frames / seconds:.1f} frames/s)",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
     return seq_dir

@@ -8,7 +8,12 @@ from matplotlib import colormaps
 
 from calib.projection import ProjectedScan
 
-__all__ = ["draw_projection"]
+__all__ = ["colourise", "draw_projection"]
+
+
+def colourise(values: np.ndarray, cmap: str = "viridis") -> np.ndarray:
+    """``values (...)`` in [0, 1] (clipped) as ``(..., 3)`` uint8 RGB of a matplotlib colour map."""
+    return (colormaps[cmap](np.clip(values, 0, 1))[..., :3] * 255).astype(np.uint8)
 
 
 def draw_projection(
@@ -17,7 +22,7 @@ def draw_projection(
     """The visible points of a scan drawn on ``image (H, W, 3)`` uint8, turbo-coloured by depth
     (near = blue, ``max_depth`` and beyond = red). Returns a new image."""
     out = image.copy()
-    colours = (colormaps["turbo"](np.clip(projected.depth / max_depth, 0, 1))[:, :3] * 255).astype(np.uint8)
+    colours = colourise(projected.depth / max_depth, "turbo")
     radius = radius if radius is not None else max(1, round(image.shape[1] / 1000))
     for (u, v), colour in zip(np.round(projected.uv).astype(int), colours, strict=True):
         cv2.circle(out, (int(u), int(v)), radius, tuple(int(c) for c in colour), -1)

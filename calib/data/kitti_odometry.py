@@ -39,8 +39,13 @@ from calib.data.types import (
 )
 from calib.errors import DataError
 
-__all__ = ["KittiOdometryWriter", "is_kitti_odometry", "read_kitti_odometry", "sequence_names",
-           "write_kitti_odometry"]
+__all__ = [
+    "KittiOdometryWriter",
+    "is_kitti_odometry",
+    "read_kitti_odometry",
+    "sequence_names",
+    "write_kitti_odometry",
+]
 
 
 def is_kitti_odometry(path: Path) -> bool:

@@ -48,7 +48,8 @@ class ExtrinsicConfig(_Strict):
     """Camera mounting: a nominal pose and a seeded per-sequence deviation from it."""
 
     camera_position_m: tuple[float, float, float] = Field(
-        (0.27, 0.06, -0.08), description="camera centre in the LiDAR frame (x fwd, y left, z up)")
+        (0.27, 0.06, -0.08), description="camera centre in the LiDAR frame (x fwd, y left, z up)"
+    )
     camera_pitch_deg: float = Field(0.0, description="downward tilt of the optical axis")
     jitter_cm: float = Field(3.0, ge=0)
     jitter_deg: float = Field(1.0, ge=0)

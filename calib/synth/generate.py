@@ -40,8 +40,9 @@ def reference_extrinsic(config: ExtrinsicConfig, rng: np.random.Generator) -> np
     T_lidar_cam[:3, 3] = config.camera_position_m
     generator = torch.Generator().manual_seed(int(rng.integers(2**31)))
     size = rng.uniform(0.5, 1.0, 2)
-    return perturb(np.linalg.inv(T_lidar_cam), config.jitter_cm * size[0], config.jitter_deg * size[1],
-                   generator)
+    return perturb(
+        np.linalg.inv(T_lidar_cam), config.jitter_cm * size[0], config.jitter_deg * size[1], generator
+    )
 
 
 @dataclass(frozen=True)
@@ -71,9 +72,12 @@ class Synthesizer:
         travel = frames / config.timing.rate_hz * config.drive.speed_mps
         build = build_vineyard if config.world == "vineyard" else build_urban
         self.world: World = build(config, travel, rng)
-        self.calibration = Calibration(K=config.camera.K, T_cam_lidar=self.T_cam_lidar,
-                                       image_size=(config.camera.height, config.camera.width),
-                                       source=f"synthetic {config.world} seed {seed}")
+        self.calibration = Calibration(
+            K=config.camera.K,
+            T_cam_lidar=self.T_cam_lidar,
+            image_size=(config.camera.height, config.camera.width),
+            source=f"synthetic {config.world} seed {seed}",
+        )
         self._static: Raycaster | None = None
         self.camera = Camera(config.camera, config.light, seed)
         self.lidar = Lidar(config.lidar, config.timing.lidar_period_s, seed)
@@ -98,17 +102,29 @@ class Synthesizer:
         t_cam = t_lidar + timing.camera_offset_s
         drive = self.world.drive
         T_world_cam = drive.lidar_poses(np.array([t_cam]))[0] @ np.linalg.inv(self.T_cam_lidar)
-        image, image_labels = self.camera.render(self.static.plus(self.world.dynamic(t_cam, wind)),
-                                                 T_world_cam, rng)
+        image, image_labels = self.camera.render(
+            self.static.plus(self.world.dynamic(t_cam, wind)), T_world_cam, rng
+        )
         T_stamp = drive.lidar_poses(np.array([t_lidar]))[0]
         # With motion distortion each azimuth column is cast from the pose at its own time
-        T_beams = drive.lidar_poses(t_lidar + self.lidar.times[: self.lidar.azimuth_steps]) \
-            if timing.motion_distortion else T_stamp
+        T_beams = (
+            drive.lidar_poses(t_lidar + self.lidar.times[: self.lidar.azimuth_steps])
+            if timing.motion_distortion
+            else T_stamp
+        )
         scan = self.lidar.scan(self.static.plus(self.world.dynamic(t_lidar, wind)), T_beams, rng)
-        frame = Frame(image=image, points=scan.points, calibration=self.calibration, index=i,
-                      name=f"{i:06d}", timestamp=t_cam, lidar_timestamp=t_lidar, labels=scan.labels,
-                      image_labels=image_labels,
-                      point_times=scan.times if timing.motion_distortion else None)
+        frame = Frame(
+            image=image,
+            points=scan.points,
+            calibration=self.calibration,
+            index=i,
+            name=f"{i:06d}",
+            timestamp=t_cam,
+            lidar_timestamp=t_lidar,
+            labels=scan.labels,
+            image_labels=image_labels,
+            point_times=scan.times if timing.motion_distortion else None,
+        )
         return SyntheticFrame(frame, scan.instance, T_stamp)
 
     def frames(self, workers: int = 1) -> Iterator[SyntheticFrame]:
@@ -154,8 +170,13 @@ def _render_in_worker(i: int) -> SyntheticFrame:
     return _WORKER_SYNTH.render(i)
 
 
-def write_sequence(synth: Synthesizer, root: Path, sequence: str, workers: int = 1,
-                   progress: Callable[[int], None] | None = None) -> Path:
+def write_sequence(
+    synth: Synthesizer,
+    root: Path,
+    sequence: str,
+    workers: int = 1,
+    progress: Callable[[int], None] | None = None,
+) -> Path:
     """Render every frame into ``root/sequences/<sequence>`` with ``meta.json`` and
     ``classes.json`` beside the KITTI files. Returns the sequence folder."""
     writer = KittiOdometryWriter(root, sequence, synth.calibration)

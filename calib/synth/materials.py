@@ -63,10 +63,18 @@ _SOIL = MATERIALS[_INDEX["soil"]]  # bare patches in grass look and reflect like
 _GLASS_REFLECTANCE = 0.03  # facade windows: most of the beam passes or mirrors away
 
 # A small palette for per-instance colours (car paint, signs, walls)
-_PAINT = np.array([
-    [0.50, 0.05, 0.05], [0.05, 0.10, 0.40], [0.60, 0.60, 0.62], [0.03, 0.03, 0.03],
-    [0.25, 0.27, 0.30], [0.55, 0.45, 0.10], [0.70, 0.70, 0.68], [0.10, 0.25, 0.12],
-])
+_PAINT = np.array(
+    [
+        [0.50, 0.05, 0.05],
+        [0.05, 0.10, 0.40],
+        [0.60, 0.60, 0.62],
+        [0.03, 0.03, 0.03],
+        [0.25, 0.27, 0.30],
+        [0.55, 0.45, 0.10],
+        [0.70, 0.70, 0.68],
+        [0.10, 0.25, 0.12],
+    ]
+)
 
 
 def material_id(name: str) -> int:
@@ -92,8 +100,14 @@ def _bare_soil(m: Material, p: np.ndarray, seed: int) -> np.ndarray:
     return fbm(p, 6.0 * m.scale, 2, seed + 101) > 0.58
 
 
-def surface(material: np.ndarray, points: np.ndarray, normals: np.ndarray, instance: np.ndarray,
-            seed: int = 0, color: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+def surface(
+    material: np.ndarray,
+    points: np.ndarray,
+    normals: np.ndarray,
+    instance: np.ndarray,
+    seed: int = 0,
+    color: bool = True,
+) -> tuple[np.ndarray | None, np.ndarray]:
     """Surface colour and LiDAR reflectance at hit points.
 
     Args:
@@ -110,10 +124,14 @@ def surface(material: np.ndarray, points: np.ndarray, normals: np.ndarray, insta
         sel = material == index
         m = MATERIALS[index]
         p, n, inst = points[sel], normals[sel], instance[sel]
-        mask = _windows(m, p, n) if m.pattern == "facade" else (
-            _bare_soil(m, p, seed) if m.pattern == "ground" else np.zeros(len(p), bool))
-        reflectance[sel] = np.where(mask, _GLASS_REFLECTANCE if m.pattern == "facade" else _SOIL.reflectance,
-                                    m.reflectance)
+        mask = (
+            _windows(m, p, n)
+            if m.pattern == "facade"
+            else (_bare_soil(m, p, seed) if m.pattern == "ground" else np.zeros(len(p), bool))
+        )
+        reflectance[sel] = np.where(
+            mask, _GLASS_REFLECTANCE if m.pattern == "facade" else _SOIL.reflectance, m.reflectance
+        )
         if not color:
             continue
         q = p * (1.0, 1.0, 0.15) if m.pattern == "streaks" else p

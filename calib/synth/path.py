@@ -26,8 +26,9 @@ class Path:
         self._tree = cKDTree(self.points)
 
     @staticmethod
-    def from_segments(start: tuple[float, float], heading: float, segments: list[tuple[float, float]],
-                      step: float = 0.1) -> Path:
+    def from_segments(
+        start: tuple[float, float], heading: float, segments: list[tuple[float, float]], step: float = 0.1
+    ) -> Path:
         """Chain straights and circular arcs.
 
         Args:

@@ -35,8 +35,9 @@ class Mesh:
     instance: np.ndarray
 
     @staticmethod
-    def of(mesh: trimesh.Trimesh | tuple[np.ndarray, np.ndarray], material: int, label: int,
-           instance: int = 0) -> Mesh:
+    def of(
+        mesh: trimesh.Trimesh | tuple[np.ndarray, np.ndarray], material: int, label: int, instance: int = 0
+    ) -> Mesh:
         """One part: a trimesh, or ``(vertices, faces)``, with the same attributes on every face."""
         vertices, faces = (mesh.vertices, mesh.faces) if isinstance(mesh, trimesh.Trimesh) else mesh
         n = len(faces)
@@ -52,8 +53,11 @@ class Mesh:
     def concat(parts: list[Mesh]) -> Mesh:
         parts = [p for p in parts if len(p.faces)]
         if not parts:
-            return Mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), *(np.zeros(0, t) for t in
-                        (np.uint8, np.uint16, np.uint16)))
+            return Mesh(
+                np.zeros((0, 3)),
+                np.zeros((0, 3), np.int64),
+                *(np.zeros(0, t) for t in (np.uint8, np.uint16, np.uint16)),
+            )
         offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
         return Mesh(
             np.concatenate([p.vertices for p in parts]),
@@ -65,8 +69,9 @@ class Mesh:
 
     def transformed(self, T: np.ndarray) -> Mesh:
         """The mesh moved by the ``(4, 4)`` transform ``T``."""
-        return Mesh(self.vertices @ T[:3, :3].T + T[:3, 3], self.faces, self.material, self.label,
-                    self.instance)
+        return Mesh(
+            self.vertices @ T[:3, :3].T + T[:3, 3], self.faces, self.material, self.label, self.instance
+        )
 
 
 @dataclass(frozen=True)

@@ -29,8 +29,9 @@ class Camera:
         self._rays = camera_rays(config)
         self._sun = sun_direction(light)
 
-    def render(self, caster: Raycaster, T_world_cam: np.ndarray,
-               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def render(
+        self, caster: Raycaster, T_world_cam: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Returns ``image (H, W, 3)`` uint8 RGB and ``labels (H, W)`` uint16 class per pixel
         (0 where the ray escapes to the sky)."""
         H, W = self.config.height, self.config.width
@@ -94,8 +95,9 @@ class Lidar:
         r = hits.t + rng.normal(0.0, self.config.range_noise_m, len(directions))
         valid = hits.hit & (r < self.config.max_range_m) & (r > 0.5)
         points = origins[valid] + directions[valid] * hits.t[valid, None]
-        _, reflectance = surface(hits.material[valid], points, hits.normal[valid], hits.instance[valid],
-                                 self.seed, color=False)
+        _, reflectance = surface(
+            hits.material[valid], points, hits.normal[valid], hits.instance[valid], self.seed, color=False
+        )
         incidence = -np.einsum("ij,ij->i", hits.normal[valid], directions[valid])
         intensity = np.clip(reflectance * incidence + rng.normal(0, 0.01, valid.sum()), 0, 1)
         # Weak returns (dark, grazing or far) are lost: keep-probability rises with the signal
@@ -105,5 +107,7 @@ class Lidar:
         xyz = self.directions[index] * r[index, None]
         return LidarScan(
             np.column_stack([xyz, intensity[keep]]).astype(np.float32),
-            hits.label[index], hits.instance[index], self.times[index],
+            hits.label[index],
+            hits.instance[index],
+            self.times[index],
         )

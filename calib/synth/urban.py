@@ -15,8 +15,20 @@ from calib.synth.world import Drive, Foliage, Mover, World
 
 __all__ = ["CLASSES", "build_urban"]
 
-CLASSES = {10: "car", 40: "road", 48: "sidewalk", 50: "building", 51: "fence", 60: "lane-marking",
-           70: "vegetation", 71: "trunk", 72: "terrain", 80: "pole", 81: "traffic-sign", 252: "moving-car"}
+CLASSES = {
+    10: "car",
+    40: "road",
+    48: "sidewalk",
+    50: "building",
+    51: "fence",
+    60: "lane-marking",
+    70: "vegetation",
+    71: "trunk",
+    72: "terrain",
+    80: "pole",
+    81: "traffic-sign",
+    252: "moving-car",
+}
 
 BEHIND_M = 40.0  # street behind the start (the LiDAR sees all around)
 AHEAD_M = 90.0  # street beyond the last frame (the camera sees far ahead)
@@ -62,22 +74,34 @@ def build_urban(config: SynthConfig, travel_m: float, rng: np.random.Generator) 
     terrain = Terrain(config.terrain.amplitude_m, config.terrain.wavelength_m, rng)
     layout, drive = config.urban, config.drive
     path = _streets(layout, drive, BEHIND_M + travel_m + AHEAD_M, rng)
-    lane, park, walk, kerb = layout.lane_width_m, layout.parking_width_m, layout.sidewalk_width_m, \
-        layout.kerb_height_m
+    lane, park, walk, kerb = (
+        layout.lane_width_m,
+        layout.parking_width_m,
+        layout.sidewalk_width_m,
+        layout.kerb_height_m,
+    )
     half = lane + park
     edge = half + walk
     s = np.arange(0.0, path.length, 1.0)
-    static = [Mesh.of(_ribbon(path, terrain, s, list(np.linspace(-half, half, 7)), [0.0] * 7),
-                      material_id("asphalt"), 40)]
+    static = [
+        Mesh.of(
+            _ribbon(path, terrain, s, list(np.linspace(-half, half, 7)), [0.0] * 7),
+            material_id("asphalt"),
+            40,
+        )
+    ]
     for side in (-1.0, 1.0):
         lat = [side * half, side * half, side * edge, side * edge]
         kerbed = _ribbon(path, terrain, s, lat, [0.0, kerb, kerb, 0.0])
         static.append(Mesh.of(kerbed, material_id("concrete"), 48))
     # Lane markings: a dashed centre line (3 m dashes every 9 m) and solid lines at the parking lanes
-    marks = [_ribbon(path, terrain, np.array([d, d + 1.5, d + 3.0]), [-0.06, 0.06], [0.01, 0.01])
-             for d in np.arange(0.0, path.length - 3.0, 9.0)]
-    marks += [_ribbon(path, terrain, s, [side * lane - 0.06, side * lane + 0.06], [0.01, 0.01])
-              for side in (-1, 1)]
+    marks = [
+        _ribbon(path, terrain, np.array([d, d + 1.5, d + 3.0]), [-0.06, 0.06], [0.01, 0.01])
+        for d in np.arange(0.0, path.length - 3.0, 9.0)
+    ]
+    marks += [
+        _ribbon(path, terrain, s, [side * lane - 0.06, side * lane + 0.06], [0.01, 0.01]) for side in (-1, 1)
+    ]
     static += [Mesh.of(m, material_id("marking"), 60) for m in marks]
 
     instance = 1
@@ -124,15 +148,21 @@ def build_urban(config: SynthConfig, travel_m: float, rng: np.random.Generator) 
             xy, heading = path.at(np.array([ps]), np.array([side * (half + 0.8)]))
             base = np.array([*xy[0], terrain.height(*xy[0]) + kerb - 0.2])
             plate = boxes(base + [0, 0, 2.6], np.array([[0.04, 0.7, 0.7]]), heading[0])
-            static += [Mesh.of(tubes(base, base + [0, 0, 2.3], 0.035), material_id("metal"), 80, instance),
-                       Mesh.of(plate, material_id("sign"), 81, instance)]
+            static += [
+                Mesh.of(tubes(base, base + [0, 0, 2.3], 0.035), material_id("metal"), 80, instance),
+                Mesh.of(plate, material_id("sign"), 81, instance),
+            ]
             instance += 1
         for ts in np.arange(rng.uniform(0, 8), path.length, layout.tree_spacing_m):
             if rng.uniform() > 0.7:
                 continue
             xy, _ = path.at(np.array([ts]), np.array([side * (edge - 1.0)]))
-            trunk, crown = tree(np.array([*xy[0], terrain.height(*xy[0]) + kerb]), rng, instance,
-                                crown_radius=rng.uniform(1.6, 2.6))
+            trunk, crown = tree(
+                np.array([*xy[0], terrain.height(*xy[0]) + kerb]),
+                rng,
+                instance,
+                crown_radius=rng.uniform(1.6, 2.6),
+            )
             static.append(trunk)
             foliage.append(crown)
             instance += 1
@@ -162,8 +192,15 @@ def build_urban(config: SynthConfig, travel_m: float, rng: np.random.Generator) 
     # Terrain beyond the sidewalks
     x0, y0 = path.points.min(0) - 80
     x1, y1 = path.points.max(0) + 80
-    vertices, faces = terrain.mesh((x0, y0, x1, y1), 1.5,
-                                   keep=lambda centre: path.distance(centre) > edge - 0.3)
+    vertices, faces = terrain.mesh(
+        (x0, y0, x1, y1), 1.5, keep=lambda centre: path.distance(centre) > edge - 0.3
+    )
     static.append(Mesh.of((vertices, faces), material_id("grass"), 72))
-    return World("urban", Mesh.concat(static), Foliage.concat(foliage),
-                 Drive(path, terrain, BEHIND_M, drive), CLASSES, movers)
+    return World(
+        "urban",
+        Mesh.concat(static),
+        Foliage.concat(foliage),
+        Drive(path, terrain, BEHIND_M, drive),
+        CLASSES,
+        movers,
+    )
