@@ -90,8 +90,8 @@ def test_residuals_recover_a_known_perturbation_on_rigid_points(still_vineyard):
         moved.append(np.linalg.norm(truth, axis=1))
     errors, moved = np.concatenate(errors), np.concatenate(moved)
     assert np.median(moved) > 4.0
-    # measured 0.56–0.65 px (ring spacing 2.65 px limits each LiDAR edge); the target is 0.5
-    assert np.median(errors) < 0.75
+    # measured over 8 still frames at 1°: 0.43 px vineyard, 0.39 px urban
+    assert np.median(errors) < 0.5
 
 
 @pytest.mark.realdata
