@@ -43,8 +43,11 @@ def agreement(world: str, frames: int, condition: str) -> dict[str, float]:
     }[condition]
     synth = Synthesizer(load_synth_config(world, **overrides), frames, seed=11)
     total = sequence_label_agreement(item.frame for item in synth.frames(workers=2))
-    return {"rigid": total.rate(RIGID_CLASSES), "foliage": total.rate({70}),
-            "rigid_points": sum(total.totals.get(c, 0) for c in RIGID_CLASSES)}
+    return {
+        "rigid": total.rate(RIGID_CLASSES),
+        "foliage": total.rate({70}),
+        "rigid_points": sum(total.totals.get(c, 0) for c in RIGID_CLASSES),
+    }
 
 
 def odometry(world: str, frames: int) -> dict[str, float]:
@@ -82,8 +85,10 @@ def main() -> None:
     for world in WORLDS:
         r = odometry(world, args.odometry_frames)
         results["odometry"][world] = r
-        print(f"{world:<10}{r['path_m']:>8.1f}{r['end_error_m']:>10.3f}{r['drift_percent']:>9.2f}"
-              f"{r['rotation_drift_deg']:>9.3f}{r['mean_error_m']:>11.3f}")
+        print(
+            f"{world:<10}{r['path_m']:>8.1f}{r['end_error_m']:>10.3f}{r['drift_percent']:>9.2f}"
+            f"{r['rotation_drift_deg']:>9.3f}{r['mean_error_m']:>11.3f}"
+        )
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2, default=float) + "\n")

@@ -94,6 +94,45 @@ def maps(
     run_maps(data, sequence, out, cfg, overwrite, resume)
 
 
+class ClassSourceName(str, Enum):
+    auto = "auto"
+    points = "points"
+    image = "image"
+    exg = "exg"
+
+
+@app.command()
+def analyze(
+    data: Annotated[Path, typer.Option(help="Dataset with a reference calibration.")],
+    out: Annotated[Path, typer.Option(help="Report folder to write.")],
+    sequences: Annotated[
+        str | None, typer.Option(help="Comma-separated sequences, e.g. 00,01 (default: all).")
+    ] = None,
+    maps: Annotated[
+        Path | None,
+        typer.Option(help="Maps of `supportnet maps` (a folder, or one per sequence in it): adds support."),
+    ] = None,
+    classes: Annotated[
+        ClassSourceName,
+        typer.Option(help="Where classes come from: point labels, image label PNGs, or Excess Green + Otsu."),
+    ] = ClassSourceName.auto,
+    stride: Annotated[int, typer.Option(help="Analyse every stride-th frame.")] = 1,
+    matcher: Annotated[
+        MatcherName | None, typer.Option(help="Stage 2 matcher (default: the config's).")
+    ] = None,
+    config: Annotated[Path | None, typer.Option(help="Maps config (default: configs/maps.yaml).")] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Experiments 1 and 2: class-wise mean and median |Δu|, |Δv| of the matcher under the reference
+    calibration, as CSV, JSON and the paper's bar chart."""
+    from supportnet.analyze import run_analyze
+    from supportnet.maps import load_maps_config
+
+    cfg = load_maps_config(config, matcher=matcher.value if matcher else None)
+    names = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else None
+    run_analyze(data, names, out, cfg, maps, classes.value, stride, overwrite)
+
+
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder.")] = Path("demo_out"),

@@ -17,7 +17,6 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from calib.config import read_yaml, validate
 from calib.data import open_dataset
@@ -25,7 +24,7 @@ from calib.data.io import write_image
 from calib.edge_matcher import EdgeMatcher, EdgeMatcherConfig
 from calib.errors import DataError, SupportnetError
 from calib.support import SupportConfig, SupportMaps, support_maps
-from supportnet.outputs import write_json
+from supportnet.outputs import progress_bar, write_json
 from supportnet.viz import colourise
 
 __all__ = ["MapsConfig", "load_maps_config", "run_maps"]
@@ -92,8 +91,7 @@ def run_maps(
     with open_dataset(data, sequence=sequence) as seq:
         if seq.calibration.T_cam_lidar is None:
             raise DataError(data, "has no reference calibration; offline support maps need one")
-        columns = (TextColumn(f"maps {seq.name}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-        with Progress(*columns, console=console, transient=True) as progress:
+        with progress_bar(f"maps {seq.name}", console) as progress:
             task = progress.add_task("maps", total=len(seq))
             for i in range(len(seq)):
                 path = partial / "frames" / f"{i:06d}.npz"

@@ -9,9 +9,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
 from calib.errors import DataError
 
-__all__ = ["atomic_output", "write_json"]
+__all__ = ["atomic_output", "progress_bar", "write_json"]
 
 
 @contextmanager
@@ -38,3 +41,9 @@ def atomic_output(out: Path, overwrite: bool = False) -> Iterator[Path]:
 
 def write_json(path: Path, data: object) -> None:
     Path(path).write_text(json.dumps(data, indent=2, default=float) + "\n")
+
+
+def progress_bar(label: str, console: Console) -> Progress:
+    """A transient bar ``label ━━━ done/total time-left`` on ``console`` (stderr for commands)."""
+    columns = (TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    return Progress(*columns, console=console, transient=True)

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import yaml
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from calib.errors import DataError
 from calib.synth.config import load_synth_config
 from calib.synth.generate import Synthesizer, write_sequence
+from supportnet.outputs import progress_bar
 
 __all__ = ["run_synth"]
 
@@ -52,13 +52,7 @@ def run_synth(
     out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".synth-{sequence}.", dir=out))
     try:
-        columns = (
-            TextColumn(f"{world} seq {sequence}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeRemainingColumn(),
-        )
-        with Progress(*columns, console=console, transient=True) as progress:
+        with progress_bar(f"{world} seq {sequence}", console) as progress:
             task = progress.add_task("render", total=frames)
             written = write_sequence(synth, tmp, sequence, workers, lambda n: progress.advance(task, n))
         (written / "config.yaml").write_text(yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))

@@ -1,14 +1,17 @@
-"""Pictures people look at: LiDAR projections coloured by depth on the image."""
+"""Pictures people look at: LiDAR projections coloured by depth on the image, maps, charts."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import cv2
 import numpy as np
 from matplotlib import colormaps
 
+from calib.analysis import ClassStats, classwise_average
 from calib.projection import ProjectedScan
 
-__all__ = ["colourise", "draw_projection"]
+__all__ = ["class_residual_chart", "colourise", "draw_projection"]
 
 
 def colourise(values: np.ndarray, cmap: str = "viridis") -> np.ndarray:
@@ -27,3 +30,37 @@ def draw_projection(
     for (u, v), colour in zip(np.round(projected.uv).astype(int), colours, strict=True):
         cv2.circle(out, (int(u), int(v)), radius, tuple(int(c) for c in colour), -1)
     return out
+
+
+def class_residual_chart(stats: list[ClassStats], path: Path, title: str) -> None:
+    """The paper's class-wise chart as a PNG: per class, the mean ``|Δu|`` (top) and ``|Δv|``
+    (bottom) as bars, red above the global class-wise average (dashed) and grey below, and the
+    per-class median as a line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [s.name for s in stats]
+    x = np.arange(len(stats))
+    fig, axes = plt.subplots(2, 1, figsize=(max(5.0, 0.9 * len(stats) + 2), 6), sharex=True)
+    for ax, label, means, medians, average in zip(
+        axes,
+        ("|Δu|", "|Δv|"),
+        ([s.mean_du for s in stats], [s.mean_dv for s in stats]),
+        ([s.median_du for s in stats], [s.median_dv for s in stats]),
+        classwise_average(stats),
+        strict=True,
+    ):
+        colours = ["tab:red" if m > average else "0.6" for m in means]
+        ax.bar(x, means, color=colours, label=f"mean {label}")
+        ax.axhline(average, color="k", linestyle="--", linewidth=1, label=f"class-wise average {average:.2f}")
+        ax.plot(x, medians, "o-", color="k", linewidth=1.2, markersize=4, label=f"median {label}")
+        ax.set_ylabel(f"{label} (px)")
+        ax.legend(fontsize=8, loc="upper left")
+        ax.grid(axis="y", alpha=0.3)
+    axes[-1].set_xticks(x, names, rotation=30, ha="right")
+    axes[0].set_title(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -11,6 +11,7 @@ camera-0 poses in the first camera-0 frame; they are returned as LiDAR poses,
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +85,16 @@ def _read_poses(path: Path, n: int, Tr: np.ndarray) -> np.ndarray:
     return np.linalg.inv(Tr) @ T_w_cam0 @ Tr
 
 
+def _read_class_names(path: Path) -> dict[int, str]:
+    """``{id: name}`` from a ``classes.json`` (what the synthetic worlds write), or ``{}``."""
+    if not path.is_file():
+        return {}
+    try:
+        return {int(k): str(v) for k, v in json.loads(path.read_text()).items()}
+    except (ValueError, AttributeError) as exc:
+        raise DataError(path, f"is not a JSON object of class id → name ({exc})") from None
+
+
 def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2) -> FileSequence:
     """Read one KITTI odometry sequence (see the module docstring for the transform)."""
     root, seq_dir, name = _resolve(Path(path), sequence)
@@ -119,6 +130,7 @@ def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2
         image_label_paths=optional_paths(seq_dir / "image_labels", stems, ".png"),
         point_time_paths=optional_paths(seq_dir / "point_times", stems, ".bin"),
         poses=poses,
+        class_names=_read_class_names(seq_dir / "classes.json"),
     )
 
 

@@ -121,6 +121,8 @@ class Sequence(abc.ABC, SequenceABC):
         notes: facts the user should know (assumptions made, a camera substituted).
         problems: what is wrong with the data (missing pairs, empty or truncated files).
         poses: ``(len, 4, 4)`` ground-truth poses when the layout ships them, else ``None``.
+        class_names: label id → name where the dataset names its own classes (a ``classes.json``
+            beside the sequence); empty means SemanticKITTI's names.
     """
 
     name: str
@@ -130,6 +132,7 @@ class Sequence(abc.ABC, SequenceABC):
     notes: list[str]
     problems: list[str]
     poses: np.ndarray | None = None
+    class_names: dict[int, str] = {}
 
     @abc.abstractmethod
     def __len__(self) -> int: ...
@@ -210,6 +213,7 @@ class FileSequence(Sequence):
         calibrations: list[Calibration] | None = None,
         poses: np.ndarray | None = None,
         point_time_paths: list[Path | None] | None = None,
+        class_names: dict[int, str] | None = None,
     ):
         n = len(image_paths)
         if len(scan_paths) != n or len(timestamps) != n:
@@ -226,6 +230,7 @@ class FileSequence(Sequence):
         self.point_time_paths = point_time_paths or [None] * n
         self.calibrations = calibrations
         self.poses = poses
+        self.class_names = dict(class_names or {})
 
     def __len__(self) -> int:
         return len(self.image_paths)

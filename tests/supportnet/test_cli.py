@@ -98,8 +98,21 @@ def test_synth_writes_a_sequence_info_reads_and_refuses_to_overwrite(tmp_path):
         "world: urban\ncamera: {width: 160, height: 48, fx: 92.5, fy: 92.5, cx: 78.0, cy: 22.0}\n"
         "lidar: {beams: 16, azimuth_step_deg: 1.0}\n"
     )
-    args = ("synth", "--world", "urban", "--frames", "2", "--seed", "3", "--out", tmp_path / "data",
-            "--sequence", "07", "--config", config)
+    args = (
+        "synth",
+        "--world",
+        "urban",
+        "--frames",
+        "2",
+        "--seed",
+        "3",
+        "--out",
+        tmp_path / "data",
+        "--sequence",
+        "07",
+        "--config",
+        config,
+    )
     result = run_cli(*args)
     assert result.returncode == 0, result.stderr
     seq = tmp_path / "data" / "sequences" / "07"

@@ -25,8 +25,11 @@ def test_noise_is_deterministic_bounded_and_smooth():
 def test_raycaster_known_distances_normals_and_attributes():
     box = Mesh.of(trimesh.creation.box((2.0, 2.0, 2.0)), material=3, label=50, instance=7)
     caster = Raycaster([box])
-    hits = caster.cast(np.array([-5.0, 0, 0]), np.array([[1.0, 0, 0], [0, 1.0, 0], [1, 0.1, 0]]) /
-                       np.linalg.norm([[1.0, 0, 0], [0, 1.0, 0], [1, 0.1, 0]], axis=1, keepdims=True))
+    hits = caster.cast(
+        np.array([-5.0, 0, 0]),
+        np.array([[1.0, 0, 0], [0, 1.0, 0], [1, 0.1, 0]])
+        / np.linalg.norm([[1.0, 0, 0], [0, 1.0, 0], [1, 0.1, 0]], axis=1, keepdims=True),
+    )
     assert hits.t[0] == pytest.approx(4.0, abs=1e-5) and np.isinf(hits.t[1])
     np.testing.assert_allclose(hits.normal[0], [-1, 0, 0], atol=1e-6)
     assert hits.label.tolist() == [50, 0, 50] and hits.instance[0] == 7 and hits.material[1] == 255
@@ -54,8 +57,13 @@ def test_terrain_gradient_matches_finite_differences_and_mesh_samples_the_surfac
     terrain = Terrain(0.5, 20.0, np.random.default_rng(1))
     x, y = np.random.default_rng(2).uniform(-30, 30, (2, 50))
     eps = 1e-6
-    fd = np.stack([(terrain.height(x + eps, y) - terrain.height(x - eps, y)) / (2 * eps),
-                   (terrain.height(x, y + eps) - terrain.height(x, y - eps)) / (2 * eps)], -1)
+    fd = np.stack(
+        [
+            (terrain.height(x + eps, y) - terrain.height(x - eps, y)) / (2 * eps),
+            (terrain.height(x, y + eps) - terrain.height(x, y - eps)) / (2 * eps),
+        ],
+        -1,
+    )
     np.testing.assert_allclose(terrain.gradient(x, y), fd, atol=1e-6)
     vertices, faces = terrain.mesh((0, 0, 10, 5), 1.0)
     np.testing.assert_allclose(vertices[:, 2], terrain.height(vertices[:, 0], vertices[:, 1]))
@@ -87,8 +95,9 @@ def test_vehicle_on_a_slope_pitches_with_it():
             return np.stack([np.full(np.shape(x), 0.1), np.zeros(np.shape(x))], -1)
 
     T = vehicle_poses(Ramp(), np.array([[2.0, 0.0], [2.0, 0.0]]), np.array([0.0, np.pi / 2]), 1.5)
-    np.testing.assert_allclose(T[:, :3, :3] @ T[:, :3, :3].transpose(0, 2, 1), np.tile(np.eye(3), (2, 1, 1)),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        T[:, :3, :3] @ T[:, :3, :3].transpose(0, 2, 1), np.tile(np.eye(3), (2, 1, 1)), atol=1e-12
+    )
     pitch = np.arctan2(T[0, 2, 0], np.hypot(T[0, 0, 0], T[0, 1, 0]))
     assert pitch == pytest.approx(np.arctan(0.1))  # nose up the slope
     assert T[1, 2, 0] == pytest.approx(0.0, abs=1e-12) and abs(T[1, 2, 1]) > 0.09  # rolls across it

@@ -15,8 +15,10 @@ from calib.labels import sequence_label_agreement
 from calib.synth.config import ExtrinsicConfig, load_synth_config
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, reference_extrinsic, write_sequence
 
-SMALL = {"camera": {"width": 312, "height": 94, "fx": 180.4, "fy": 180.4, "cx": 152.4, "cy": 43.2},
-         "lidar": {"beams": 32, "azimuth_step_deg": 0.4}}
+SMALL = {
+    "camera": {"width": 312, "height": 94, "fx": 180.4, "fy": 180.4, "cx": 152.4, "cy": 43.2},
+    "lidar": {"beams": 32, "azimuth_step_deg": 0.4},
+}
 
 
 def small(world, **overrides):
@@ -27,8 +29,9 @@ def test_reference_extrinsic_varies_by_seed_within_the_jitter():
     config = ExtrinsicConfig()
     nominal = reference_extrinsic(ExtrinsicConfig(jitter_cm=0, jitter_deg=0), np.random.default_rng(0))
     np.testing.assert_allclose(np.linalg.inv(nominal)[:3, 3], config.camera_position_m, atol=1e-12)
-    errors = [calibration_error(nominal, reference_extrinsic(config, np.random.default_rng(s)))
-              for s in range(5)]
+    errors = [
+        calibration_error(nominal, reference_extrinsic(config, np.random.default_rng(s))) for s in range(5)
+    ]
     for e in errors:
         assert 0.5 * 3.0 - 1e-6 <= float(e.translation_cm) <= 3.0 + 1e-6
         assert 0.5 - 1e-6 <= float(e.rotation_deg) <= 1.0 + 1e-6
@@ -59,8 +62,9 @@ def test_ground_truth_labels_agree_at_a_still_moment(world):
 def test_wind_and_time_offset_lower_foliage_agreement():
     rates = []
     for amplitude, offset in ((0.0, 0.0), (0.3, 0.1)):
-        synth = Synthesizer(small("vineyard", wind={"amplitude_m": amplitude},
-                                  timing={"camera_offset_s": offset}), 2, seed=2)
+        synth = Synthesizer(
+            small("vineyard", wind={"amplitude_m": amplitude}, timing={"camera_offset_s": offset}), 2, seed=2
+        )
         rates.append(sequence_label_agreement(item.frame for item in synth.frames()).rate({70}))
     assert rates[1] < rates[0] - 0.02
 
