@@ -134,6 +134,30 @@ def analyze(
 
 
 @app.command()
+def calibrate(
+    data: Annotated[Path, typer.Option(help="Dataset (any supported layout).")],
+    out: Annotated[Path, typer.Option(help="Report folder to write.")],
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    support: Annotated[
+        str, typer.Option(help="uniform, offline:MAPS, onnx[:MODEL]; comma-separated for paired runs.")
+    ] = "uniform",
+    init: Annotated[
+        str, typer.Option(help="Initial extrinsic: perturb:CM,DEG of the reference, file:PATH, stage1.")
+    ] = "perturb:10,2",
+    runs: Annotated[int, typer.Option(help="Repeat with new initial draws (paired across supports).")] = 1,
+    seed: Annotated[int, typer.Option(help="Seed of the initial draws and the sampling.")] = 0,
+    config: Annotated[
+        Path | None, typer.Option(help="Calibrate config (default: configs/calibrate.yaml).")
+    ] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Stage 4: support-guided (or uniform) sampling and weighted SE(3) refinement, in passes."""
+    from supportnet.calibrate import load_calibrate_config, run_calibrate
+
+    run_calibrate(data, sequence, support, init, out, load_calibrate_config(config), runs, seed, overwrite)
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder.")] = Path("demo_out"),
     overwrite: Overwrite = False,
