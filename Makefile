@@ -25,6 +25,7 @@ test-all: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/bench_synth.py
 	$(PY) benchmarks/bench_matcher.py
+	$(PY) benchmarks/bench_refine.py
 
 lint: $(STAMP)
 	.venv/bin/ruff check calib supportnet train export tests benchmarks
