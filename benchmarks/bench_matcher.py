@@ -3,11 +3,10 @@ excluded). Prints a table and writes benchmarks/results/matcher.json."""
 
 from __future__ import annotations
 
-import json
 import time
-from pathlib import Path
 
 import numpy as np
+from results_io import save_results
 
 from calib.edge_matcher import EdgeMatcher
 from calib.support import support_maps
@@ -47,9 +46,7 @@ def main() -> None:
             f"{world:10} {r['matcher_ms_median']:>15.0f} / {r['matcher_ms_max']:<6.0f} "
             f"{r['correspondences_per_frame']:>11.0f} {r['maps_frames_per_s']:>9.1f}"
         )
-    out = Path(__file__).parent / "results" / "matcher.json"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(rows, indent=2) + "\n")
+    save_results("matcher", rows)
 
 
 if __name__ == "__main__":

@@ -4,12 +4,11 @@ noise; also uniform sampling. Prints a table and writes benchmarks/results/refin
 
 from __future__ import annotations
 
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
+from results_io import save_results
 
 from calib.geometry import calibration_error, perturb
 from calib.refine import refine_extrinsic
@@ -71,9 +70,7 @@ def main() -> None:
             f"{name:10} {r['seconds_median']:>9.3f} {r['seconds_max']:>7.3f} "
             f"{r['translation_cm']:>8.3f} cm {r['rotation_deg']:.4f}°"
         )
-    out = Path(__file__).parent / "results" / "refine.json"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(rows, indent=2) + "\n")
+    save_results("refine", rows)
 
 
 if __name__ == "__main__":
