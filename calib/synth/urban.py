@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.data.classes import SEMANTIC_KITTI
 from calib.synth.config import DriveConfig, SynthConfig, UrbanLayout
 from calib.synth.materials import material_id
 from calib.synth.path import Path, vehicle_poses
@@ -15,20 +16,7 @@ from calib.synth.world import Drive, Foliage, Mover, World
 
 __all__ = ["CLASSES", "build_urban"]
 
-CLASSES = {
-    10: "car",
-    40: "road",
-    48: "sidewalk",
-    50: "building",
-    51: "fence",
-    60: "lane-marking",
-    70: "vegetation",
-    71: "trunk",
-    72: "terrain",
-    80: "pole",
-    81: "traffic-sign",
-    252: "moving-car",
-}
+CLASSES = {i: SEMANTIC_KITTI[i] for i in (10, 40, 48, 50, 51, 60, 70, 71, 72, 80, 81, 252)}
 
 BEHIND_M = 40.0  # street behind the start (the LiDAR sees all around)
 AHEAD_M = 90.0  # street beyond the last frame (the camera sees far ahead)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.data.classes import SEMANTIC_KITTI
 from calib.synth.config import DriveConfig, SynthConfig, VineyardLayout
 from calib.synth.materials import material_id
 from calib.synth.path import Path, vehicle_poses
@@ -15,17 +16,8 @@ from calib.synth.world import Drive, Foliage, World
 
 __all__ = ["CLASSES", "build_vineyard"]
 
-# SemanticKITTI ids where a class has one; 100 (wire) has none.
-CLASSES = {
-    10: "car",
-    50: "building",
-    52: "other-structure",
-    70: "vegetation",
-    71: "trunk",
-    72: "terrain",
-    80: "pole",
-    100: "wire",
-}
+# SemanticKITTI ids and names where a class has one; 100 (wire) has none.
+CLASSES = {**{i: SEMANTIC_KITTI[i] for i in (10, 50, 52, 70, 71, 72, 80)}, 100: "wire"}
 
 
 def _serpentine(layout: VineyardLayout, drive: DriveConfig, length_m: float) -> tuple[Path, int]:
