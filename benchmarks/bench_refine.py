@@ -10,11 +10,12 @@ import numpy as np
 import torch
 from results_io import save_results
 
+from calib.calibrate import SamplingConfig, draw
 from calib.geometry import calibration_error, perturb
 from calib.refine import refine_extrinsic
-from calib.sampling import support_sample, uniform_sample
 
 FRAMES, CANDIDATES, PER_FRAME, REPEATS = 10, 20_000, 2000, 7
+SAMPLING = SamplingConfig(per_frame=PER_FRAME, floor=0.01)
 K = np.array([[360.0, 0.0, 311.5], [0.0, 360.0, 93.5], [0.0, 0.0, 1.0]])
 T_REF = np.array([[0.0, -1.0, 0.0, 0.01], [0.0, 0.0, -1.0, -0.08], [1.0, 0.0, 0.0, -0.27], [0, 0, 0, 1.0]])
 
@@ -34,14 +35,10 @@ def one_run(
     start = time.perf_counter()
     points, uv, weights = [], [], []
     for p, u, s in frames:
-        index = (
-            support_sample(s, PER_FRAME, rng, 0.01)
-            if sampler == "sgis"
-            else uniform_sample(len(s), PER_FRAME, rng)
-        )
+        index, w = draw(s if sampler == "sgis" else None, len(s), SAMPLING, rng)  # Stage 4's own draw
         points.append(p[index])
         uv.append(u[index])
-        weights.append(s[index] + 0.01 if sampler == "sgis" else np.ones(len(index)))
+        weights.append(w)
     result = refine_extrinsic(np.concatenate(points), np.concatenate(uv), np.concatenate(weights), K, T_init)
     return time.perf_counter() - start, result.T_cam_lidar
 

@@ -19,6 +19,7 @@ from calib.data.classes import class_name
 from calib.data.types import Frame
 from calib.errors import DataError
 from calib.matching import Correspondences
+from calib.projection import pixel_lookup
 
 __all__ = [
     "EXG_CLASSES",
@@ -68,11 +69,8 @@ def point_classes(frame: Frame, corr: Correspondences, source: ClassSource) -> n
     """``(N,)`` int class id of each correspondence (ids of :data:`EXG_CLASSES` for ``exg``)."""
     if source == "points":
         return np.asarray(frame.labels)[corr.index].astype(np.int64)
-    H, W = corr.image_size
-    r = np.clip(np.rint(corr.uv[:, 1]).astype(int), 0, H - 1)
-    c = np.clip(np.rint(corr.uv[:, 0]).astype(int), 0, W - 1)
     labels = frame.image_labels if source == "image" else excess_green_foliage(frame.image)
-    return np.asarray(labels)[r, c].astype(np.int64)
+    return pixel_lookup(np.asarray(labels), corr.uv).astype(np.int64)
 
 
 @dataclass(frozen=True)

@@ -15,10 +15,11 @@ from calib.edge_matcher import EdgeMatcherConfig
 from calib.errors import SupportnetError
 from calib.geometry import calibration_error
 from calib.matching import Matcher
+from calib.projection import pixel_lookup
 from calib.refine import RefineConfig, refine_extrinsic
 from calib.sampling import support_sample, uniform_sample
 
-__all__ = ["CalibrateConfig", "PassesResult", "SamplingConfig", "SupportFn", "refine_passes"]
+__all__ = ["CalibrateConfig", "PassesResult", "SamplingConfig", "SupportFn", "draw", "refine_passes"]
 
 SupportFn = Callable[[Frame], np.ndarray | None]
 """The support map ``(H, W)`` in [0, 1] of a frame, or ``None`` for uniform sampling."""
@@ -63,15 +64,15 @@ class PassesResult:
     correspondences: int
 
 
-def _draw(support: np.ndarray | None, uv: np.ndarray, config: SamplingConfig, rng: np.random.Generator):
-    """Indices and Eq. 4 weights of the correspondences at pixels ``uv (N, 2)``."""
+def draw(
+    support: np.ndarray | None, n: int, config: SamplingConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Indices and Eq. 4 weights of ``config.per_frame`` of ``n`` candidates: SGIS on their
+    support values ``(n,)``, or uniform when ``support`` is ``None``."""
     if support is None:
-        index = uniform_sample(len(uv), config.per_frame, rng)
+        index = uniform_sample(n, config.per_frame, rng)
         return index, np.ones(len(index))
-    H, W = support.shape
-    r = np.clip(np.rint(uv[:, 1]).astype(int), 0, H - 1)
-    c = np.clip(np.rint(uv[:, 0]).astype(int), 0, W - 1)
-    s = support[r, c].astype(np.float64)
+    s = np.asarray(support, np.float64)
     index = support_sample(s, config.per_frame, rng, config.floor)
     return index, (s[index] + config.floor if config.weight_by_support else np.ones(len(index)))
 
@@ -93,7 +94,9 @@ def refine_passes(
         points, targets, weights = [], [], []
         for frame in frames:
             corr = matcher.match(frame, T)
-            index, w = _draw(support(frame), corr.uv, config.sampling, rng)
+            support_map = support(frame)
+            values = None if support_map is None else pixel_lookup(support_map, corr.uv)
+            index, w = draw(values, len(corr), config.sampling, rng)
             points.append(corr.points_lidar[index])
             targets.append(corr.uv_matched[index])
             weights.append(w)

@@ -100,6 +100,19 @@ def _pixel_index(uv: torch.Tensor, image_size: tuple[int, int]) -> tuple[torch.T
     return row.clamp(0, H - 1) * W + col.clamp(0, W - 1), inside
 
 
+def pixel_lookup(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Values of ``image (H, W, ...)`` at the nearest pixel of each ``uv (N, 2)`` (rounded as the
+    z-buffer rounds), clipped to the border.
+
+    Returns:
+        ``(N, ...)``.
+    """
+    H, W = image.shape[:2]
+    col = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, W - 1)
+    row = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+    return image[row, col]
+
+
 def _min_depth_image(
     flat: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, image_size: tuple[int, int]
 ) -> torch.Tensor:

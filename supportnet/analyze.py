@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import yaml
 from rich.console import Console
 from rich.table import Table
 
@@ -30,10 +29,11 @@ from calib.analysis import (
 )
 from calib.data import open_dataset
 from calib.data.kitti_odometry import sequence_names
-from calib.edge_matcher import EdgeMatcher
 from calib.errors import DataError, SupportnetError
+from calib.matchers import build_matcher
+from calib.projection import pixel_lookup
 from supportnet.maps import MapsConfig
-from supportnet.outputs import atomic_output, progress_bar, write_json
+from supportnet.outputs import atomic_output, progress_bar, resolved_config, write_json
 from supportnet.viz import class_residual_chart
 
 __all__ = ["run_analyze"]
@@ -81,14 +81,12 @@ def run_analyze(
         What ``classes.json`` holds.
     """
     console = console or Console(stderr=True)
-    if config.matcher == "flow":
-        raise SupportnetError("--matcher flow: the learned flow matcher is not built yet; use --matcher edge")
+    matcher = build_matcher(config.matcher, config.edge)
     if stride < 1:
         raise DataError("--stride", f"must be at least 1, got {stride}")
     data = Path(data)
     if not sequences:
         sequences = sequence_names(data) if (data / "sequences").is_dir() else [None]
-    matcher = EdgeMatcher(config.edge)
     start = time.perf_counter()
     total, per_sequence, sources, frames = ClassResiduals(), {}, {}, 0
     for sequence in sequences:
@@ -111,8 +109,7 @@ def run_analyze(
                     if support_map is not None:
                         if support_map.shape != frame.image_size:
                             raise DataError(maps, f"maps are {support_map.shape}, images {frame.image_size}")
-                        r, c = np.rint(corr.uv[:, ::-1]).astype(int).T
-                        support = support_map[r, c]
+                        support = pixel_lookup(support_map, corr.uv)
                     T = frame.calibration.T_cam_lidar
                     depth = corr.points_lidar @ T[2, :3] + T[2, 3]
                     cls = point_classes(frame, corr, source)
@@ -156,7 +153,7 @@ def run_analyze(
             stats = [s for s in acc.stats() if s.points >= MIN_POINTS]
             title = f"{data.name} {key}: matcher residuals under the reference"
             class_residual_chart(stats, tmp / name, title)
-        (tmp / "config.yaml").write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
+        (tmp / "config.yaml").write_text(resolved_config(config))
     _print_table(overall, console)
     seconds = result["runtime_s"]
     console.print(f"wrote {out} ({frames} frames in {seconds:.1f} s)", markup=False, highlight=False)

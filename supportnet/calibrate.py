@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import yaml
 from rich.console import Console
 
 from calib.calibrate import CalibrateConfig, refine_passes
@@ -24,11 +23,11 @@ from calib.config import read_yaml, validate
 from calib.data import open_dataset
 from calib.data.io import write_image
 from calib.data.types import Frame
-from calib.edge_matcher import EdgeMatcher
 from calib.errors import DataError, SupportnetError
 from calib.geometry import calibration_error, perturb
+from calib.matchers import build_matcher
 from calib.projection import project_scan
-from supportnet.outputs import atomic_output, progress_bar, write_json
+from supportnet.outputs import atomic_output, progress_bar, resolved_config, write_json
 from supportnet.viz import colourise, draw_projection
 
 __all__ = ["Support", "load_calibrate_config", "parse_init", "parse_supports", "run_calibrate"]
@@ -107,12 +106,29 @@ def parse_init(text: str) -> tuple[str, object]:
 
 
 def _summary(runs: list[dict]) -> dict:
+    """Mean, median and std of both errors over runs (empty without a reference)."""
+    if runs[0]["error"] is None:
+        return {}
     out = {}
     for key in ("translation_cm", "rotation_deg"):
-        values = np.array([r["error"][key] for r in runs]) if runs[0]["error"] else None
-        if values is not None:
-            out[key] = {"mean": values.mean(), "median": np.median(values), "std": values.std()}
+        values = np.array([r["error"][key] for r in runs])
+        out[key] = {"mean": values.mean(), "median": np.median(values), "std": values.std()}
     return out
+
+
+def _wins(runs: list[dict], baseline: list[dict]) -> dict:
+    """In how many paired runs ``runs`` ended with the smaller error than ``baseline``."""
+    return {
+        "runs": len(runs),
+        "translation_wins": sum(
+            a["error"]["translation_cm"] < b["error"]["translation_cm"]
+            for a, b in zip(runs, baseline, strict=True)
+        ),
+        "rotation_wins": sum(
+            a["error"]["rotation_deg"] < b["error"]["rotation_deg"]
+            for a, b in zip(runs, baseline, strict=True)
+        ),
+    }
 
 
 def _overlay(frame: Frame, T_before: np.ndarray, T_after: np.ndarray) -> np.ndarray:
@@ -165,8 +181,7 @@ def run_calibrate(
 ) -> dict:
     """Paired runs of Stage 4 for every support; returns what ``result.json`` holds."""
     console = console or Console(stderr=True)
-    if config.matcher == "flow":
-        raise SupportnetError("--matcher flow: the learned flow matcher is not built yet; use edge")
+    matcher = build_matcher(config.matcher, config.edge)
     if runs < 1:
         raise DataError("--runs", f"must be at least 1, got {runs}")
     supports = parse_supports(supports_text, config)
@@ -178,7 +193,6 @@ def run_calibrate(
             raise DataError(data, "has no reference calibration to perturb; use --init file:PATH")
         picks = np.unique(np.linspace(0, len(seq) - 1, min(config.frames, len(seq))).round().astype(int))
         frames = [seq[int(i)] for i in picks]
-    matcher = EdgeMatcher(config.edge)
     results = {s.name: {"support": s.name, "runs": []} for s in supports}
     with progress_bar("calibrate", console) as progress:
         task = progress.add_task("calibrate", total=runs * len(supports))
@@ -222,21 +236,11 @@ def run_calibrate(
         )
     paired = {}
     if "uniform" in results and T_ref is not None:
-        base = results["uniform"]["runs"]
-        for name, r in results.items():
-            if name != "uniform":
-                paired[name] = {
-                    "runs": runs,
-                    **{
-                        f"{k}_wins": int(
-                            sum(
-                                a["error"][f"{k}_{u}"] < b["error"][f"{k}_{u}"]
-                                for a, b in zip(r["runs"], base, strict=True)
-                            )
-                        )
-                        for k, u in (("translation", "cm"), ("rotation", "deg"))
-                    },
-                }
+        paired = {
+            name: _wins(r["runs"], results["uniform"]["runs"])
+            for name, r in results.items()
+            if name != "uniform"
+        }
     head = results[supports[0].name]
     output = {
         **{
@@ -269,7 +273,7 @@ def run_calibrate(
     with atomic_output(out, overwrite) as tmp:
         write_json(tmp / "result.json", output)
         (tmp / "summary.md").write_text(_markdown(output))
-        (tmp / "config.yaml").write_text(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
+        (tmp / "config.yaml").write_text(resolved_config(config))
         for support in supports:
             slug = re.sub(r"[^A-Za-z0-9]+", "_", support.name).strip("_")
             first = results[support.name]["runs"][0]

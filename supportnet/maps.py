@@ -14,17 +14,17 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict
 from rich.console import Console
 
 from calib.config import read_yaml, validate
 from calib.data import open_dataset
 from calib.data.io import write_image
-from calib.edge_matcher import EdgeMatcher, EdgeMatcherConfig
-from calib.errors import DataError, SupportnetError
+from calib.edge_matcher import EdgeMatcherConfig
+from calib.errors import DataError
+from calib.matchers import build_matcher
 from calib.support import SupportConfig, SupportMaps, support_maps
-from supportnet.outputs import progress_bar, write_json
+from supportnet.outputs import progress_bar, resolved_config, write_json
 from supportnet.viz import colourise
 
 __all__ = ["MapsConfig", "load_maps_config", "run_maps"]
@@ -71,12 +71,11 @@ def run_maps(
     """Match every frame under the reference calibration and accumulate support maps."""
     console = console or Console(stderr=True)
     out = Path(out)
-    if config.matcher == "flow":
-        raise SupportnetError("--matcher flow: the learned flow matcher is not built yet; use --matcher edge")
+    matcher = build_matcher(config.matcher, config.edge)
     if out.exists() and not overwrite:
         raise DataError(out, "already exists; pass --overwrite to replace it")
     partial = out.with_name(out.name + ".partial")
-    resolved = yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
+    resolved = resolved_config(config)
     stored_config = partial / "config.yaml"
     same_config = stored_config.is_file() and stored_config.read_text() == resolved
     if partial.exists() and not (resume and same_config):
@@ -86,7 +85,6 @@ def run_maps(
     (partial / "frames").mkdir(parents=True, exist_ok=True)
     (partial / "previews").mkdir(exist_ok=True)
     (partial / "config.yaml").write_text(resolved)
-    matcher = EdgeMatcher(config.edge)
     start, matched, total = time.perf_counter(), 0, None
     with open_dataset(data, sequence=sequence) as seq:
         if seq.calibration.T_cam_lidar is None:

@@ -9,12 +9,14 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import yaml
+from pydantic import BaseModel
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from calib.errors import DataError
 
-__all__ = ["atomic_output", "progress_bar", "write_json"]
+__all__ = ["atomic_output", "progress_bar", "resolved_config", "write_json"]
 
 
 @contextmanager
@@ -41,6 +43,11 @@ def atomic_output(out: Path, overwrite: bool = False) -> Iterator[Path]:
 
 def write_json(path: Path, data: object) -> None:
     Path(path).write_text(json.dumps(data, indent=2, default=float) + "\n")
+
+
+def resolved_config(config: BaseModel) -> str:
+    """The YAML a command saves beside its outputs: every key of ``config``, defaults resolved."""
+    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
 
 
 def progress_bar(label: str, console: Console) -> Progress:

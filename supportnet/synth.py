@@ -8,13 +8,12 @@ import tempfile
 import time
 from pathlib import Path
 
-import yaml
 from rich.console import Console
 
 from calib.errors import DataError
 from calib.synth.config import load_synth_config
 from calib.synth.generate import Synthesizer, write_sequence
-from supportnet.outputs import progress_bar
+from supportnet.outputs import progress_bar, resolved_config
 
 __all__ = ["run_synth"]
 
@@ -55,7 +54,7 @@ def run_synth(
         with progress_bar(f"{world} seq {sequence}", console) as progress:
             task = progress.add_task("render", total=frames)
             written = write_sequence(synth, tmp, sequence, workers, lambda n: progress.advance(task, n))
-        (written / "config.yaml").write_text(yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))
+        (written / "config.yaml").write_text(resolved_config(cfg))
         if seq_dir.exists():
             shutil.rmtree(seq_dir)
         seq_dir.parent.mkdir(parents=True, exist_ok=True)
