@@ -3,7 +3,7 @@ PY      := .venv/bin/python
 STAMP   := .venv/.installed
 TORCH   := torch==2.13.0
 
-.PHONY: demo test test-all bench lint clean
+.PHONY: demo test test-all bench lint clean model
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -33,3 +33,8 @@ lint: $(STAMP)
 
 clean:
 	rm -rf .venv demo_out .pytest_cache
+
+# The shipped support predictor (supportnet/assets/support_unet.onnx and its model card), re-made
+# with fixed seeds: synthetic data and maps under build/model, then train, export and score.
+model: $(STAMP)
+	$(PY) -m train.recipe

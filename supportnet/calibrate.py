@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +28,7 @@ from calib.geometry import calibration_error, perturb
 from calib.matchers import build_matcher
 from calib.projection import project_scan
 from supportnet.outputs import atomic_output, progress_bar, resolved_config, write_json
+from supportnet.predictor import SHIPPED_MODEL, SupportPredictor
 from supportnet.viz import colourise, draw_projection
 
 __all__ = ["Support", "load_calibrate_config", "parse_init", "parse_supports", "run_calibrate"]
@@ -42,31 +43,44 @@ def load_calibrate_config(path: Path | None = None) -> CalibrateConfig:
 
 @dataclass(frozen=True)
 class Support:
-    """One ``--support`` value: its name and the map it gives every frame (``None``: uniform)."""
+    """One ``--support`` value: its name and the map it gives every frame (``None``: uniform).
+
+    Attributes:
+        name: as given on the command line.
+        map: one ``(H, W)`` map for every frame (offline maps of the whole sequence), or ``None``.
+        predictor: predicts a map per frame from its image (``onnx``), or ``None``.
+    """
 
     name: str
-    map: np.ndarray | None
+    map: np.ndarray | None = None
+    predictor: SupportPredictor | None = None
+    _predicted: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __call__(self, frame: Frame) -> np.ndarray | None:
+        if self.predictor is not None:
+            if frame.index not in self._predicted:
+                self._predicted[frame.index] = self.predictor.predict(frame.image)[0]
+            return self._predicted[frame.index]
         if self.map is not None and self.map.shape != frame.image_size:
             raise DataError(self.name, f"map is {self.map.shape}, images are {frame.image_size}")
         return self.map
 
 
 def parse_supports(text: str, config: CalibrateConfig) -> list[Support]:
-    """``uniform``, ``offline:MAPS`` (a ``supportnet maps`` folder), comma-separated."""
+    """``uniform``, ``offline:MAPS`` (a ``supportnet maps`` folder), ``onnx[:MODEL]`` (bare:
+    the shipped model), comma-separated."""
     supports = []
     for item in (s.strip() for s in text.split(",") if s.strip()):
         kind, _, arg = item.partition(":")
         if kind == "uniform" and not arg:
-            supports.append(Support("uniform", None))
+            supports.append(Support("uniform"))
         elif kind == "offline" and arg:
             path = Path(arg) / "sequence.npz"
             if not path.is_file():
                 raise DataError(path, "not found; make offline maps with `supportnet maps`")
-            supports.append(Support(item, np.load(path)[config.support_map].astype(np.float32)))
+            supports.append(Support(item, map=np.load(path)[config.support_map].astype(np.float32)))
         elif kind == "onnx":
-            raise SupportnetError("--support onnx: the learned support predictor is not built yet")
+            supports.append(Support(item, predictor=SupportPredictor(Path(arg) if arg else SHIPPED_MODEL)))
         else:
             raise DataError("--support", f"{item!r} is not uniform, offline:MAPS or onnx[:MODEL]")
     if not supports or len({s.name for s in supports}) != len(supports):
@@ -281,7 +295,8 @@ def run_calibrate(
                 tmp / f"overlay_{slug}.png",
                 _overlay(frames[0], np.array(first["initial_T_cam_lidar"]), np.array(first["T_cam_lidar"])),
             )
-            if support.map is not None:
-                write_image(tmp / f"support_{slug}.png", colourise(support.map))
+            shown = support(frames[0])
+            if shown is not None:
+                write_image(tmp / f"support_{slug}.png", colourise(shown))
     console.print(_markdown(output), markup=False, highlight=False)
     return output

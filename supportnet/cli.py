@@ -134,6 +134,57 @@ def analyze(
 
 
 @app.command()
+def train(
+    config: Annotated[Path, typer.Option(help="Training config.")] = Path("configs/train.yaml"),
+    overrides: Annotated[
+        list[str] | None,
+        typer.Argument(help="key.sub=value overrides, e.g. trainer.max_epochs=5 data.batch_size=16."),
+    ] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Train the support predictor (Lightning) on offline maps: checkpoints, logs, learning curves."""
+    from train.config import load_train_config
+    from train.run import run_train
+
+    run_train(load_train_config(config, overrides or []), overwrite)
+
+
+@app.command()
+def export(
+    ckpt: Annotated[Path, typer.Option(help="Checkpoint of `supportnet train`.")],
+    out: Annotated[Path, typer.Option(help="ONNX file to write.")],
+    opset: Annotated[int, typer.Option(help="ONNX opset (17 or newer).")] = 17,
+    overwrite: Overwrite = False,
+) -> None:
+    """Export to ONNX and verify it: onnx.checker, onnxruntime against torch on another shape,
+    and the pre-processing contract read back from the metadata."""
+    from export.onnx import export_onnx
+
+    report = export_onnx(ckpt, out, opset, overwrite)
+    typer.echo(
+        f"wrote {out} ({report['bytes'] / 1e6:.2f} MB, opset {opset}); onnxruntime vs torch on "
+        f"{tuple(report['parity_shape'])}: max abs diff {report['max_abs_diff']:.1e}"
+    )
+
+
+@app.command()
+def predict(
+    data: Annotated[Path, typer.Option(help="Dataset (any supported layout).")],
+    out: Annotated[Path, typer.Option(help="Folder of predicted maps to write.")],
+    model: Annotated[Path | None, typer.Option(help="ONNX model (default: the shipped one).")] = None,
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    maps: Annotated[
+        Path | None, typer.Option(help="Offline maps of this sequence: score the predictions against them.")
+    ] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Stage 3 online: the learned support map of every frame (onnxruntime)."""
+    from supportnet.predict import run_predict
+
+    run_predict(model, data, sequence, out, maps, overwrite)
+
+
+@app.command()
 def calibrate(
     data: Annotated[Path, typer.Option(help="Dataset (any supported layout).")],
     out: Annotated[Path, typer.Option(help="Report folder to write.")],

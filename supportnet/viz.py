@@ -11,7 +11,7 @@ from matplotlib import colormaps
 from calib.analysis import ClassStats, classwise_average
 from calib.projection import ProjectedScan
 
-__all__ = ["class_residual_chart", "colourise", "draw_projection"]
+__all__ = ["class_residual_chart", "colourise", "draw_projection", "learning_curves"]
 
 
 def colourise(values: np.ndarray, cmap: str = "viridis") -> np.ndarray:
@@ -63,4 +63,41 @@ def class_residual_chart(stats: list[ClassStats], path: Path, title: str) -> Non
     axes[0].set_title(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def learning_curves(metrics_csv: Path, path: Path) -> None:
+    """Training and validation loss (left) and validation Pearson r / Spearman ρ (right) per
+    epoch, from Lightning's ``metrics.csv``, as a PNG."""
+    import csv
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series: dict[str, dict[int, float]] = {}
+    with open(metrics_csv, newline="") as f:
+        for row in csv.DictReader(f):
+            for key, value in row.items():
+                if value and key not in ("epoch", "step") and row.get("epoch"):
+                    series.setdefault(key, {})[int(row["epoch"])] = float(value)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.6))
+    for key, ax in (
+        ("train/loss_epoch", left),
+        ("val/loss", left),
+        ("val/pearson", right),
+        ("val/spearman", right),
+        ("val/mae", right),
+    ):
+        if key in series:
+            epochs = sorted(series[key])
+            ax.plot(epochs, [series[key][e] for e in epochs], marker=".", label=key)
+    left.set(xlabel="epoch", ylabel="weighted BCE", title="loss")
+    right.set(xlabel="epoch", title="validation (held-out sequences)", ylim=(0, 1))
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)

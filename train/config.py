@@ -1,0 +1,102 @@
+"""``configs/train.yaml``: the support predictor's training, validated (a typo fails loudly)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field
+
+from calib.config import read_yaml, validate
+from calib.errors import DataError
+from supportnet.model import ModelConfig
+
+__all__ = ["TrainConfig", "load_train_config"]
+
+
+class _Group(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Source(_Group):
+    """One sequence and its ``supportnet maps`` folder."""
+
+    data: Path
+    sequence: str | None = None
+    maps: Path
+    split: Literal["train", "val"]
+
+
+class DataConfig(_Group):
+    sources: list[Source] = Field(min_length=2, description="split by sequence: at least one of each")
+    target: Literal["agreement", "support"] = Field(
+        "agreement", description="per-frame agreement Σ aG / Σ G, or Eq. 2 normalised by its peak"
+    )
+    min_coverage: float = Field(0.5, gt=0, description="no target where the coverage is below this")
+    weight_cap: float = Field(4.0, gt=0, description="the loss weight is the coverage, capped here")
+    frame_stride: int = Field(1, ge=1, description="use every k-th frame (neighbours are alike)")
+    crop: tuple[int, int] = Field((128, 320), description="training crop (H, W)")
+    batch_size: int = Field(8, ge=1)
+    samples_per_epoch: int = Field(800, ge=1, description="random crops per training epoch")
+    workers: int = Field(0, ge=0)
+
+
+class AugmentConfig(_Group):
+    flip: float = Field(0.5, ge=0, le=1, description="horizontal flip probability (geometric)")
+    affine: float = Field(0.5, ge=0, le=1, description="small rotation/scale/shift probability (geometric)")
+    colour: float = Field(0.8, ge=0, le=1, description="colour jitter probability (photometric)")
+    blur: float = Field(0.2, ge=0, le=1, description="Gaussian blur probability (photometric)")
+
+
+class OptimConfig(_Group):
+    lr: float = Field(3e-3, gt=0)
+    weight_decay: float = Field(1e-4, ge=0)
+
+
+class TrainerConfig(_Group):
+    """Passed to ``lightning.Trainer``: ``accelerator: gpu, devices: 4, strategy: ddp`` trains on
+    four GPUs with the same file."""
+
+    accelerator: str = "cpu"
+    devices: int | str = 1
+    strategy: str = "auto"
+    precision: str = "32-true"
+    max_epochs: int = Field(40, ge=1)
+    max_time_min: float = Field(18.0, gt=0, description="stop training after this many minutes")
+    patience: int = Field(8, ge=1, description="early stopping on validation Pearson r")
+    logger: Literal["csv", "tensorboard"] = "csv"
+    log_every_n_steps: int = Field(10, ge=1)
+    threads: int = Field(0, ge=0, description="torch CPU threads (0: torch's default)")
+    fast_dev_run: bool = False
+
+
+class TrainConfig(_Group):
+    seed: int = 0
+    out: Path = Field(Path("runs/support"), description="checkpoints, logs and curves go here")
+    data: DataConfig
+    model: ModelConfig = ModelConfig()
+    augment: AugmentConfig = AugmentConfig()
+    optim: OptimConfig = OptimConfig()
+    trainer: TrainerConfig = TrainerConfig()
+
+
+def _set(tree: dict, dotted: str, value: object) -> None:
+    *parents, leaf = dotted.split(".")
+    for key in parents:
+        child = tree.setdefault(key, {})
+        if not isinstance(child, dict):
+            raise DataError("override", f"{dotted}: {key} is not a group")
+        tree = child
+    tree[leaf] = value
+
+
+def load_train_config(path: Path, overrides: list[str] = ()) -> TrainConfig:
+    """The config in ``path`` with ``key.sub=value`` overrides (values parsed as YAML)."""
+    data = read_yaml(path)
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise DataError("override", f"{item!r} is not key.sub=value")
+        _set(data, key.strip(), yaml.safe_load(text))
+    return validate(TrainConfig, data, path)
