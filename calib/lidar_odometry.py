@@ -21,18 +21,25 @@ def lidar_odometry(
     Args:
         scans: ``(N, 3+)`` point clouds in the LiDAR frame, in time order.
         point_times: optional per-point times per scan (KISS-ICP deskews with them).
-        voxel_size_m: map voxel size; KISS-ICP's default is ``max_range / 100``.
+        voxel_size_m: map voxel size; ``None`` leaves KISS-ICP's loader its default, ``max_range / 100``.
 
     Returns:
         ``(F, 4, 4)``; the first is the identity.
     """
-    from kiss_icp.config import KISSConfig
+    import tempfile
+
+    import yaml
+    from kiss_icp.config import load_config
     from kiss_icp.kiss_icp import KissICP
 
-    config = KISSConfig()
-    config.data.max_range, config.data.min_range = max_range_m, min_range_m
-    config.data.deskew = point_times is not None
-    config.mapping.voxel_size = voxel_size_m or max_range_m / 100.0
+    settings = {
+        "data": {"max_range": max_range_m, "min_range": min_range_m, "deskew": point_times is not None},
+        "mapping": {"voxel_size": voxel_size_m} if voxel_size_m else {},
+    }
+    with tempfile.NamedTemporaryFile("w", suffix=".yaml") as f:  # KISS-ICP's own loader fills defaults
+        yaml.safe_dump(settings, f)
+        f.flush()
+        config = load_config(f.name)
     odometry = KissICP(config)
     times = iter(point_times) if point_times is not None else None
     poses = []

@@ -23,10 +23,12 @@ from calib.config import read_yaml, validate
 from calib.data import open_dataset
 from calib.data.io import write_image
 from calib.data.types import Frame
-from calib.errors import DataError, SupportnetError
+from calib.errors import DataError
 from calib.geometry import calibration_error, perturb
+from calib.hand_eye import HandEyeResult
 from calib.matchers import build_matcher
 from calib.projection import project_scan
+from calib.stage1 import initial_calibration
 from supportnet.outputs import atomic_output, progress_bar, resolved_config, write_json
 from supportnet.predictor import SHIPPED_MODEL, SupportPredictor
 from supportnet.viz import colourise, draw_projection
@@ -90,7 +92,8 @@ def parse_supports(text: str, config: CalibrateConfig) -> list[Support]:
 
 def parse_init(text: str) -> tuple[str, object]:
     """``perturb:CM,DEG`` → ``("perturb", (cm, deg))``; ``file:PATH`` → ``("file", T (4, 4))``
-    from a text file of 12 or 16 numbers or a ``result.json``."""
+    from a text file of 12 or 16 numbers or a ``result.json``; ``stage1`` → ``("stage1", None)``
+    (Stage 1 from the sequence's motion, ``configs/init_calib.yaml``)."""
     kind, _, arg = text.partition(":")
     if kind == "perturb":
         match = re.fullmatch(r"\s*([0-9.]+)\s*,\s*([0-9.]+)\s*", arg)
@@ -114,9 +117,19 @@ def parse_init(text: str) -> tuple[str, object]:
         T = np.eye(4)
         T[:3] = values.reshape(-1, 4)[:3]
         return "file", T
-    if kind == "stage1":
-        raise SupportnetError("--init stage1: motion-based initial calibration is not built yet")
+    if kind == "stage1" and not arg:
+        return "stage1", None
     raise DataError("--init", f"{text!r} is not perturb:CM,DEG, file:PATH or stage1")
+
+
+def _stage1_report(stage1: HandEyeResult) -> dict:
+    """What ``--init stage1`` found besides the extrinsic: its uncertainty and weak directions."""
+    return {
+        "T_cam_lidar": stage1.T_cam_lidar.tolist(),
+        "std_deg": stage1.std_deg.tolist(),
+        "std_cm": stage1.std_cm.tolist(),
+        "weak": [w.to_dict() for w in stage1.weak],
+    }
 
 
 def _summary(runs: list[dict]) -> dict:
@@ -205,6 +218,15 @@ def run_calibrate(
         T_ref = seq.calibration.T_cam_lidar
         if init_kind == "perturb" and T_ref is None:
             raise DataError(data, "has no reference calibration to perturb; use --init file:PATH")
+        stage1 = None
+        if init_kind == "stage1":
+            from supportnet.init_calib import load_stage1_config
+
+            with console.status("Stage 1: initial extrinsic from motion"):
+                stage1 = initial_calibration(seq, load_stage1_config()).calibration
+            for weak in stage1.weak:
+                console.print(f"Stage 1 weak: {weak}", markup=False, highlight=False, soft_wrap=True)
+            init_kind, init_arg = "file", stage1.T_cam_lidar
         picks = np.unique(np.linspace(0, len(seq) - 1, min(config.frames, len(seq))).round().astype(int))
         frames = [seq[int(i)] for i in picks]
     results = {s.name: {"support": s.name, "runs": []} for s in supports}
@@ -279,6 +301,13 @@ def run_calibrate(
         "seed": seed,
         "runs_requested": runs,
         "frame_indices": picks.tolist(),
+        "stage1": None
+        if stage1 is None
+        else {
+            "weak": [w.to_dict() for w in stage1.weak],
+            "std_deg": stage1.std_deg.tolist(),
+            "std_cm": stage1.std_cm.tolist(),
+        },
         "results": results,
         "paired_vs_uniform": paired,
         "config": config.model_dump(mode="json"),

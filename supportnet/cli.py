@@ -184,6 +184,23 @@ def predict(
     run_predict(model, data, sequence, out, maps, overwrite)
 
 
+@app.command("init-calib")
+def init_calib(
+    data: Annotated[Path, typer.Option(help="Dataset (any supported layout) with motion.")],
+    out: Annotated[Path, typer.Option(help="Folder to write.")],
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    config: Annotated[
+        Path | None, typer.Option(help="Stage 1 config (default: configs/init_calib.yaml).")
+    ] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Stage 1: the initial extrinsic from motion (KISS-ICP, OpenCV visual odometry, time sync,
+    scaled hand–eye), with its uncertainty and what the motion could not observe."""
+    from supportnet.init_calib import load_stage1_config, run_init_calib
+
+    run_init_calib(data, sequence, out, load_stage1_config(config), overwrite)
+
+
 @app.command()
 def calibrate(
     data: Annotated[Path, typer.Option(help="Dataset (any supported layout).")],

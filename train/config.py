@@ -35,10 +35,11 @@ class DataConfig(_Group):
     )
     min_coverage: float = Field(0.5, gt=0, description="no target where the coverage is below this")
     weight_cap: float = Field(4.0, gt=0, description="the loss weight is the coverage, capped here")
-    frame_stride: int = Field(1, ge=1, description="use every k-th frame (neighbours are alike)")
+    frame_stride: int = Field(1, ge=1, description="train on every k-th frame (neighbours are alike)")
+    val_frame_stride: int = Field(4, ge=1, description="validate on every k-th held-out frame")
     crop: tuple[int, int] = Field((128, 320), description="training crop (H, W)")
     batch_size: int = Field(8, ge=1)
-    samples_per_epoch: int = Field(800, ge=1, description="random crops per training epoch")
+    samples_per_epoch: int = Field(960, ge=1, description="random crops per training epoch")
     workers: int = Field(0, ge=0)
 
 
@@ -62,7 +63,7 @@ class TrainerConfig(_Group):
     devices: int | str = 1
     strategy: str = "auto"
     precision: str = "32-true"
-    max_epochs: int = Field(40, ge=1)
+    max_epochs: int = Field(16, ge=1)
     max_time_min: float = Field(18.0, gt=0, description="stop training after this many minutes")
     patience: int = Field(8, ge=1, description="early stopping on validation Pearson r")
     logger: Literal["csv", "tensorboard"] = "csv"

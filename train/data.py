@@ -42,13 +42,15 @@ class FrameTargets:
 
 
 def load_source(source: Source, config: DataConfig) -> FrameTargets:
-    """Every ``frame_stride``-th frame of one sequence with its targets."""
+    """Every ``frame_stride``-th (validation: ``val_frame_stride``-th) frame of one sequence with
+    its targets."""
     maps = Path(source.maps) / "frames"
     if not maps.is_dir():
         raise DataError(maps, "not found; make per-frame maps with `supportnet maps`")
     images, targets, weights = [], [], []
     with open_dataset(source.data, sequence=source.sequence) as seq:
-        for i in range(0, len(seq), config.frame_stride):
+        stride = config.frame_stride if source.split == "train" else config.val_frame_stride
+        for i in range(0, len(seq), stride):
             path = maps / f"{i:06d}.npz"
             if not path.is_file():
                 raise DataError(path, f"missing: the maps do not cover frame {i} of {seq.name}")

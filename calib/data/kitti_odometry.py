@@ -1,5 +1,7 @@
 """KITTI odometry layout: ``sequences/NN/{image_2, velodyne, labels, image_labels}``, ``calib.txt``,
-``times.txt``, ``poses/NN.txt`` (reader and writer; the synthetic worlds write this layout).
+``times.txt``, ``poses/NN.txt`` (reader and writer; the synthetic worlds write this layout), and
+optionally ``times_lidar.txt``: scan stamps where they differ from the camera's (a supportnet
+extension the synthetic worlds write; Stage 1's time sync reads it).
 
 Transform: ``calib.txt`` holds ``Tr`` (LiDAR -> rectified camera 0, already ``T_cam0_lidar``) and
 ``P0..P3`` (rectified camera 0 -> image X). For camera X (colour camera 2 by default)
@@ -114,6 +116,7 @@ def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2
     stems = [p.stem for p in images]
     notes: list[str] = []
     times = paired_timestamps(seq_dir / "times.txt", all_images, images, notes)
+    lidar_times = _read_lidar_times(seq_dir / "times_lidar.txt", len(all_images), len(images))
     poses_path = root / "poses" / f"{name}.txt"
     poses = _read_poses(poses_path, len(all_images), Tr) if poses_path.is_file() and not problems else None
     calibration = Calibration(K=K, T_cam_lidar=T_camX_cam0 @ Tr, source=str(calib_path))
@@ -131,7 +134,22 @@ def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2
         point_time_paths=optional_paths(seq_dir / "point_times", stems, ".bin"),
         poses=poses,
         class_names=_read_class_names(seq_dir / "classes.json"),
+        lidar_timestamps=lidar_times,
     )
+
+
+def _read_lidar_times(path: Path, listed: int, paired: int) -> np.ndarray | None:
+    """``times_lidar.txt`` (a supportnet extension the synthetic worlds write: scan stamps where
+    they differ from ``times.txt``); ``None`` when absent or when frames went unpaired."""
+    if not path.is_file() or listed != paired:
+        return None
+    try:
+        times = np.loadtxt(path, dtype=np.float64, ndmin=1)
+    except ValueError as exc:
+        raise DataError(path, f"does not parse ({exc})") from None
+    if len(times) != listed:
+        raise DataError(path, f"holds {len(times)} stamps for {listed} frames")
+    return times
 
 
 class KittiOdometryWriter:
@@ -155,6 +173,7 @@ class KittiOdometryWriter:
         calib_text += format_kv_line("Tr", calibration.T_cam_lidar[:3, :])
         atomic_write_text(self.seq_dir / "calib.txt", calib_text)
         self._times: list[float] = []
+        self._lidar_times: list[float | None] = []
 
     def _path(self, folder: str, suffix: str) -> Path:
         (self.seq_dir / folder).mkdir(exist_ok=True)
@@ -170,12 +189,16 @@ class KittiOdometryWriter:
             write_image(self._path("image_labels", ".png"), frame.image_labels.astype(np.uint16))
         if frame.point_times is not None:
             np.asarray(frame.point_times, np.float32).tofile(self._path("point_times", ".bin"))
+        self._lidar_times.append(frame.lidar_timestamp)
         self._times.append(frame.timestamp if frame.timestamp is not None else len(self._times) / 10.0)
 
     def close(self, poses_lidar: np.ndarray | None = None) -> Path:
         """Write ``times.txt`` and, given ``(len, 4, 4)`` LiDAR poses, ``poses/<sequence>.txt``
         (as camera-0 poses, KITTI's convention). Returns the sequence folder."""
         atomic_write_text(self.seq_dir / "times.txt", "".join(f"{t:.6e}\n" for t in self._times))
+        if self._lidar_times and all(t is not None for t in self._lidar_times):
+            text = "".join(f"{t:.6e}\n" for t in self._lidar_times)
+            atomic_write_text(self.seq_dir / "times_lidar.txt", text)
         if poses_lidar is not None:
             Tr = self.calibration.T_cam_lidar
             T_w_cam0 = Tr @ np.asarray(poses_lidar) @ np.linalg.inv(Tr)

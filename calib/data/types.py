@@ -196,6 +196,7 @@ class FileSequence(Sequence):
         label_paths: optional per-frame SemanticKITTI ``.label`` files (``None`` entries allowed).
         image_label_paths: optional per-frame class PNGs.
         point_time_paths: optional per-frame float32 files of per-point times (seconds).
+        lidar_timestamps: optional LiDAR scan times in seconds, when they differ from the camera's.
     """
 
     def __init__(
@@ -214,6 +215,7 @@ class FileSequence(Sequence):
         poses: np.ndarray | None = None,
         point_time_paths: list[Path | None] | None = None,
         class_names: dict[int, str] | None = None,
+        lidar_timestamps: np.ndarray | None = None,
     ):
         n = len(image_paths)
         if len(scan_paths) != n or len(timestamps) != n:
@@ -231,6 +233,7 @@ class FileSequence(Sequence):
         self.calibrations = calibrations
         self.poses = poses
         self.class_names = dict(class_names or {})
+        self.lidar_timestamps = None if lidar_timestamps is None else np.asarray(lidar_timestamps, np.float64)
 
     def __len__(self) -> int:
         return len(self.image_paths)
@@ -250,6 +253,7 @@ class FileSequence(Sequence):
             index=i,
             name=self.image_paths[i].stem,
             timestamp=float(self.timestamps[i]),
+            lidar_timestamp=None if self.lidar_timestamps is None else float(self.lidar_timestamps[i]),
             labels=read_label(label_path, len(points)) if label_path else None,
             image_labels=read_label_image(image_label_path) if image_label_path else None,
             point_times=read_point_times(times_path, len(points)) if times_path else None,

@@ -23,7 +23,7 @@ from calib.data.kitti_odometry import write_kitti_odometry
 from calib.data.rosbag import BagTopics, write_bag
 from calib.errors import DataError
 from calib.geometry import perturb
-from tests.conftest import KITTI_K, kitti_like_extrinsic
+from tests.conftest import KITTI_K, kitti_like_extrinsic, make_frames
 
 
 def _assert_same_frames(seq, frames, image_exact=True):
@@ -337,3 +337,17 @@ def test_info_mode_collects_problems_instead_of_raising(tmp_path, frames):
     shutil.rmtree(scans)
     with pytest.raises(DataError, match="folder not found"):
         open_dataset(root, strict=False)
+
+
+def test_kitti_odometry_reads_separate_lidar_stamps(tmp_path):
+    frames = make_frames(3)
+    for i, f in enumerate(frames):
+        f.lidar_timestamp = f.timestamp - 0.02 + 0.001 * i
+    write_kitti_odometry(tmp_path, "00", frames)
+    with open_dataset(tmp_path, sequence="00") as seq:
+        assert [seq[i].lidar_timestamp for i in range(3)] == pytest.approx(
+            [f.lidar_timestamp for f in frames]
+        )
+    (tmp_path / "sequences" / "00" / "times_lidar.txt").write_text("1.0\n")
+    with pytest.raises(DataError, match="holds 1 stamps for 3 frames"):
+        open_dataset(tmp_path, sequence="00")

@@ -37,7 +37,13 @@ def _config_file(tmp_path, sources, **trainer):
         json.dumps(
             {
                 "out": str(tmp_path / "run"),
-                "data": {"sources": sources, "crop": [64, 96], "batch_size": 2, "samples_per_epoch": 4},
+                "data": {
+                    "sources": sources,
+                    "crop": [64, 96],
+                    "batch_size": 2,
+                    "samples_per_epoch": 4,
+                    "val_frame_stride": 1,
+                },
                 "model": {"width": 4, "depth": 2},
                 "trainer": trainer,
             }

@@ -1,0 +1,136 @@
+"""Stage 1: the initial extrinsic from motion (MDPCalib-style), a thin orchestrator.
+
+LiDAR odometry (KISS-ICP) → visual odometry (OpenCV, up to scale) → LiDAR poses interpolated at
+the camera keyframes' time stamps → scaled hand–eye calibration with robust refinement and an
+observability report.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from calib.data.types import Sequence
+from calib.hand_eye import HandEyeConfig, HandEyeResult, UnobservableError, hand_eye
+from calib.lidar_odometry import lidar_odometry
+from calib.time_sync import interpolate_poses
+from calib.visual_odometry import CameraMotion, VisualOdometryConfig, visual_odometry
+
+__all__ = ["LidarOdometryConfig", "Stage1Config", "Stage1Result", "initial_calibration"]
+
+
+class LidarOdometryConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_range_m: float = Field(100.0, gt=0)
+    min_range_m: float = Field(2.0, ge=0)
+    voxel_size_m: float | None = Field(None, gt=0, description="None: KISS-ICP's default, max_range / 100")
+    deskew: bool = Field(True, description="deskew with per-point times where the data has them")
+
+
+class Stage1Config(BaseModel):
+    """``configs/init_calib.yaml``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    lidar: LidarOdometryConfig = LidarOdometryConfig()
+    visual: VisualOdometryConfig = VisualOdometryConfig()
+    max_sync_gap_s: float = Field(
+        0.15, gt=0, description="LiDAR poses farther apart are not interpolated across"
+    )
+    hand_eye: HandEyeConfig = HandEyeConfig()
+
+
+@dataclass(frozen=True)
+class Stage1Result:
+    """What Stage 1 found, with what it used.
+
+    Attributes:
+        calibration: the hand–eye result (extrinsic, covariance, weak directions).
+        lidar_poses: ``(F, 4, 4)`` ``T_lidar0_lidar`` at the LiDAR stamps.
+        lidar_times, camera_times: ``(F,)`` seconds.
+        motions: the camera keyframe motions (unit translations).
+        lidar_motions: ``(M, 4, 4)`` the synchronised LiDAR motions, one per kept camera motion.
+        kept: ``(len(motions),)`` bool, motions whose stamps could be synchronised.
+        seconds: wall time per step.
+        notes: facts a user should know (stamps assumed, planar motion).
+    """
+
+    calibration: HandEyeResult
+    lidar_poses: np.ndarray
+    lidar_times: np.ndarray
+    camera_times: np.ndarray
+    motions: list[CameraMotion]
+    lidar_motions: np.ndarray
+    kept: np.ndarray
+    seconds: dict[str, float]
+    notes: list[str]
+
+
+def initial_calibration(
+    seq: Sequence, config: Stage1Config = Stage1Config(), progress: Callable[[str], None] | None = None
+) -> Stage1Result:
+    """``T_cam_lidar`` of ``seq`` from its motion alone (no reference used).
+
+    Raises:
+        UnobservableError: the motion cannot determine the extrinsic (the message says why).
+    """
+    say = progress or (lambda _: None)
+    notes: list[str] = []
+    seconds: dict[str, float] = {}
+    frames = [seq[i] for i in range(len(seq))]
+    camera_times = np.array(
+        [f.timestamp if f.timestamp is not None else i / 10.0 for i, f in enumerate(frames)]
+    )
+    lidar_times = np.array(
+        [
+            f.lidar_timestamp if f.lidar_timestamp is not None else camera_times[i]
+            for i, f in enumerate(frames)
+        ]
+    )
+    if all(f.lidar_timestamp is None for f in frames):
+        notes.append("the data has no separate LiDAR stamps: scans taken at the camera stamps")
+
+    say("LiDAR odometry (KISS-ICP)")
+    start = time.perf_counter()
+    deskew = config.lidar.deskew and all(f.point_times is not None for f in frames)
+    lidar_poses = lidar_odometry(
+        (f.points for f in frames),
+        (f.point_times for f in frames) if deskew else None,
+        config.lidar.max_range_m,
+        config.lidar.min_range_m,
+        config.lidar.voxel_size_m,
+    )
+    seconds["lidar_odometry"] = time.perf_counter() - start
+
+    say("visual odometry (OpenCV)")
+    start = time.perf_counter()
+    motions = visual_odometry((f.image for f in frames), seq.calibration.K, config.visual)
+    seconds["visual_odometry"] = time.perf_counter() - start
+    if not motions:
+        raise UnobservableError(f"{seq.name}: visual odometry found no keyframe pair with enough parallax")
+
+    say("time sync and hand–eye")
+    start = time.perf_counter()
+    ends = np.array([[camera_times[m.i], camera_times[m.j]] for m in motions])
+    at_camera, valid = interpolate_poses(lidar_times, lidar_poses, ends.ravel(), config.max_sync_gap_s)
+    at_camera, kept = at_camera.reshape(-1, 2, 4, 4), valid.reshape(-1, 2).all(axis=1)
+    A = np.stack([m.T for m, k in zip(motions, kept, strict=True) if k])
+    B = np.linalg.inv(at_camera[kept, 1]) @ at_camera[kept, 0]  # T_lidar_j_lidar_i
+    calibration = hand_eye(A, B, config.hand_eye)
+    seconds["hand_eye"] = time.perf_counter() - start
+    return Stage1Result(
+        calibration=calibration,
+        lidar_poses=lidar_poses,
+        lidar_times=lidar_times,
+        camera_times=camera_times,
+        motions=motions,
+        lidar_motions=B,
+        kept=kept,
+        seconds=seconds,
+        notes=notes + calibration.notes,
+    )
