@@ -38,7 +38,9 @@ class UnobservableError(NumericalError):
 class HandEyeConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    min_rotation_deg: float = Field(1.0, ge=0, description="pairs rotating less are left out")
+    min_rotation_deg: float = Field(
+        1.0, ge=0, description="pairs rotating less are left out of the closed-form rotation"
+    )
     min_pairs: int = Field(3, ge=2, description="fewer usable pairs than this is an error")
     metric_camera: bool = Field(False, description="camera translations are metric (scales known, = 1)")
     rotation_sigma_deg: float = Field(0.1, gt=0, description="expected rotation noise of one motion")
@@ -90,12 +92,13 @@ class HandEyeResult:
 
     Attributes:
         T_cam_lidar: ``(4, 4)``. closed_form: ``(4, 4)`` before refinement.
-        scales: ``(K,)`` metric length of each used camera translation.
+        scales: ``(K,)`` metric length of each camera translation.
         covariance: ``(6, 6)`` of (rotation vector rad, translation m), scales marginalised.
         std_deg, std_cm: ``(3,)`` per camera-frame axis.
         weak: directions whose std exceeds the thresholds (empty: everything observable).
-        used: ``(K_all,)`` bool, the pairs that entered. inlier_ratio: share of used pairs whose
-            residuals stay within the Cauchy scale.
+        used: ``(K,)`` bool, the pairs rotating enough for the closed-form rotation (every pair
+            enters the linear translation step and the refinement).
+        inlier_ratio: share of pairs whose residuals stay within the Cauchy scale.
     """
 
     T_cam_lidar: np.ndarray
@@ -119,11 +122,12 @@ def _kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def _closed_form(
-    A: np.ndarray, B: np.ndarray, metric: bool, notes: list[str]
+    A: np.ndarray, B: np.ndarray, rotating: np.ndarray, metric: bool, notes: list[str]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``R_X``, ``t_X`` and scales from the linear steps."""
-    omega_A = Rotation.from_matrix(A[:, :3, :3]).as_rotvec()
-    omega_B = Rotation.from_matrix(B[:, :3, :3]).as_rotvec()
+    """``R_X`` from the ``rotating`` pairs' axes, then ``t_X`` and scales of every pair by linear
+    least squares."""
+    omega_A = Rotation.from_matrix(A[rotating, :3, :3]).as_rotvec()
+    omega_B = Rotation.from_matrix(B[rotating, :3, :3]).as_rotvec()
     singular = np.linalg.svd(omega_B, compute_uv=False)
     source, target = omega_B, omega_A
     if singular[1] < 0.05 * singular[0]:  # every axis parallel: add the translation directions
@@ -132,8 +136,9 @@ def _closed_form(
         )
         unit = lambda t: t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)  # noqa: E731
         scale = np.linalg.norm(omega_B, axis=1).mean()
-        source = np.vstack([omega_B, scale * unit(B[:, :3, 3])])
-        target = np.vstack([omega_A, scale * unit(A[:, :3, 3])])
+        moving = np.linalg.norm(B[:, :3, 3], axis=1) > 1e-6
+        source = np.vstack([omega_B, scale * unit(B[moving, :3, 3])])
+        target = np.vstack([omega_A, scale * unit(A[moving, :3, 3])])
     R_X = _kabsch(source, target)
     K = len(A)
     # (R_A − I) t_X + s_k â_k = R_X t_B, stacked: unknowns t_X (3) and s_k (K) unless metric
@@ -208,9 +213,8 @@ def hand_eye(A: np.ndarray, B: np.ndarray, config: HandEyeConfig = HandEyeConfig
     used = (angle_A >= config.min_rotation_deg) & (angle_B >= config.min_rotation_deg)
     if used.sum() < config.min_pairs:
         raise UnobservableError(_no_rotation_report(B, int(used.sum()), config))
-    A, B = A[used], B[used]
     notes: list[str] = []
-    R0, t0, s0 = _closed_form(A, B, config.metric_camera, notes)
+    R0, t0, s0 = _closed_form(A, B, used, config.metric_camera, notes)
     closed = np.eye(4)
     closed[:3, :3], closed[:3, 3] = R0, t0
     x0 = np.concatenate([np.zeros(3), t0, [] if config.metric_camera else s0])

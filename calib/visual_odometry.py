@@ -1,7 +1,8 @@
 """Monocular visual odometry with OpenCV: relative camera motions up to scale.
 
 Corners (Shi–Tomasi) are tracked with pyramidal Lucas–Kanade (forward–backward checked) from a
-keyframe to the following frames until their median displacement reaches ``min_parallax_px``
+keyframe to the following frames until their displacement (a high percentile: distant corners
+hardly move) reaches ``min_parallax_px``
 (frames with too little parallax are skipped); the essential matrix is estimated with RANSAC and
 decomposed into ``T_cam_j_cam_i`` with a unit translation.
 """
@@ -24,8 +25,14 @@ class VisualOdometryConfig(BaseModel):
     max_corners: int = Field(1500, ge=8)
     corner_quality: float = Field(0.005, gt=0, le=1)
     corner_distance_px: float = Field(7.0, gt=0)
-    min_parallax_px: float = Field(10.0, ge=0, description="median flow a keyframe pair needs")
-    max_skip: int = Field(6, ge=1, description="frames tracked at most before giving up on a keyframe")
+    min_parallax_px: float = Field(10.0, ge=0, description="flow a keyframe pair needs (see percentile)")
+    parallax_percentile: float = Field(
+        80.0,
+        ge=0,
+        le=100,
+        description="which percentile of the tracks' flow is the parallax (near ones move)",
+    )
+    max_skip: int = Field(15, ge=1, description="frames tracked at most before giving up on a keyframe")
     track_error_px: float = Field(0.5, gt=0, description="forward–backward disagreement allowed")
     ransac_threshold_px: float = Field(0.5, gt=0)
     min_inliers: int = Field(60, ge=8)
@@ -71,24 +78,20 @@ def visual_odometry(
         that finds none within ``max_skip`` frames is replaced by the latest frame.
     """
     motions: list[CameraMotion] = []
-    key_index, key_image, corners, tracked = None, None, None, None
+    key_index, key_image, corners = 0, None, None
     for index, image in enumerate(images):
         gray = _gray(image)
         if key_image is not None:
             tracked = _track(key_image, gray, corners, config.track_error_px)
             alive = np.isfinite(tracked[:, 0, 0])
-            parallax = (
-                float(np.median(np.linalg.norm((tracked - corners)[alive, 0], axis=1)))
-                if alive.any()
-                else 0.0
-            )
+            flow = np.linalg.norm((tracked - corners)[alive, 0], axis=1)
+            parallax = float(np.percentile(flow, config.parallax_percentile)) if alive.any() else 0.0
+            motion = None
             if parallax >= config.min_parallax_px and alive.sum() >= config.min_inliers:
                 motion = _relative_pose(corners[alive, 0], tracked[alive, 0], K, config)
-                if motion is not None:
-                    T, inliers = motion
-                    motions.append(CameraMotion(key_index, index, T, inliers, parallax))
-                    key_image = None
-            elif index - key_index >= config.max_skip or alive.sum() < config.min_inliers:
+            if motion is not None:
+                motions.append(CameraMotion(key_index, index, motion[0], motion[1], parallax))
+            if motion is not None or index - key_index >= config.max_skip or alive.sum() < config.min_inliers:
                 key_image = None
         if key_image is None:
             key_index, key_image = index, gray

@@ -115,6 +115,7 @@ def export_network(
                 f"onnxruntime and torch disagree on {CHECK_SHAPE}: shapes {actual.shape}/{expected.shape}, "
                 f"max abs diff {diff:.2e} > {tolerance:.0e}"
             )
+        tmp.chmod(0o644)  # mkstemp made it private
         tmp.replace(out)
     finally:
         tmp.unlink(missing_ok=True)
