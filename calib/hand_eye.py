@@ -171,6 +171,15 @@ def _residuals(
     return np.concatenate([pairs.reshape(-1), prior])
 
 
+def _cauchy_except_prior(z: np.ndarray) -> np.ndarray:
+    """Cauchy ``ρ(z) = log(1 + z)`` on the pairs' squared residuals, plain squares on the last
+    three (the prior on ``t_X`` must not be down-weighted as an outlier), with ρ′ and ρ″."""
+    out = np.empty((3, len(z)))
+    out[0], out[1], out[2] = np.log1p(z), 1 / (1 + z), -1 / (1 + z) ** 2
+    out[:, -3:] = np.stack([z[-3:], np.ones(3), np.zeros(3)])
+    return out
+
+
 def _weak_directions(
     covariance: np.ndarray, R_X: np.ndarray, config: HandEyeConfig
 ) -> tuple[list[WeakDirection], np.ndarray, np.ndarray]:
@@ -218,18 +227,25 @@ def hand_eye(A: np.ndarray, B: np.ndarray, config: HandEyeConfig = HandEyeConfig
     closed = np.eye(4)
     closed[:3, :3], closed[:3, 3] = R0, t0
     x0 = np.concatenate([np.zeros(3), t0, [] if config.metric_camera else s0])
+    K = len(A)
+    sparsity = np.zeros((6 * K + 3, len(x0)), bool)  # pair k: the extrinsic and its own scale
+    sparsity[:, :6] = True
+    if not config.metric_camera:
+        sparsity[np.arange(6 * K), 6 + np.repeat(np.arange(K), 6)] = True
     fit = least_squares(
         _residuals,
         x0,
         args=(A, B, R0, config.metric_camera, config),
-        loss="cauchy",
+        loss=_cauchy_except_prior,
         f_scale=config.loss_scale,
         x_scale="jac",
+        jac_sparsity=sparsity,
     )
     R_X = Rotation.from_rotvec(fit.x[:3]).as_matrix() @ R0
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R_X, fit.x[3:6]
-    info = fit.jac.T @ fit.jac
+    J = fit.jac.toarray() if hasattr(fit.jac, "toarray") else fit.jac  # sparse with jac_sparsity
+    info = J.T @ J
     # marginalise the scales (Schur complement); rotation is a left perturbation in the camera frame
     if not config.metric_camera:
         info = info[:6, :6] - info[:6, 6:] @ np.linalg.pinv(info[6:, 6:]) @ info[6:, :6]

@@ -5,7 +5,7 @@ import pytest
 
 from calib.calibrate import CalibrateConfig
 from calib.data import open_dataset
-from calib.errors import DataError, SupportnetError
+from calib.errors import DataError
 from calib.synth.config import load_synth_config
 from calib.synth.generate import Synthesizer, write_sequence
 from supportnet.calibrate import load_calibrate_config, parse_init, parse_supports, run_calibrate
@@ -65,8 +65,9 @@ def test_parse_errors_are_one_line(tmp_path):
     with pytest.raises(DataError, match="12 or 16 numbers"):
         (tmp_path / "bad.txt").write_text("1 2 3")
         parse_init(f"file:{tmp_path / 'bad.txt'}")
-    with pytest.raises(SupportnetError, match="not built yet"):
-        parse_init("stage1")
+    assert parse_init("stage1") == ("stage1", None)
+    with pytest.raises(DataError, match="is not perturb:CM,DEG, file:PATH or stage1"):
+        parse_init("stage1:x")
     with pytest.raises(DataError, match="supportnet maps"):
         parse_supports(f"offline:{tmp_path}", config)
     with pytest.raises(DataError, match="distinct"):
