@@ -14,7 +14,6 @@ import torch
 from results_io import save_results
 
 from export.onnx import export_network
-from supportnet.contract import Contract
 from supportnet.model import ModelConfig, SupportUNet
 from supportnet.predictor import SHIPPED_MODEL, SupportPredictor
 
@@ -43,7 +42,7 @@ def main() -> None:
         else:
             config, source = ModelConfig(), "random weights"
         net = SupportUNet(config).eval()
-        contract = Contract(stride=net.stride, extra={"model": config.model_dump()})
+        contract = net.contract()
         export_network(net, contract, Path(tmp) / "model.onnx")
         predictor = SupportPredictor(Path(tmp) / "model.onnx")
 

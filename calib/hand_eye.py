@@ -113,6 +113,14 @@ class HandEyeResult:
     cost: float
     notes: list[str] = field(default_factory=list)
 
+    def report(self) -> dict:
+        """The standard deviations and weak directions, as JSON-ready values."""
+        return {
+            "std_deg": self.std_deg.tolist(),
+            "std_cm": self.std_cm.tolist(),
+            "weak": [w.to_dict() for w in self.weak],
+        }
+
 
 def _kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     """``R`` minimising ``Σ ‖target_k − R source_k‖²``; ``source, target (K, 3)``."""
@@ -250,9 +258,8 @@ def hand_eye(A: np.ndarray, B: np.ndarray, config: HandEyeConfig = HandEyeConfig
     if not config.metric_camera:
         info = info[:6, :6] - info[:6, 6:] @ np.linalg.pinv(info[6:, 6:]) @ info[6:, :6]
     covariance = np.linalg.pinv(info[:6, :6], rcond=1e-12, hermitian=True)
-    values = np.linalg.eigvalsh(info[:6, :6])
+    values, vectors = np.linalg.eigh(info[:6, :6])
     if values[0] <= 1e-9 * values[-1]:  # an exactly blind direction: its std is unbounded
-        vectors = np.linalg.eigh(info[:6, :6])[1]
         covariance = covariance + 1e6 * np.outer(vectors[:, 0], vectors[:, 0])
     weak, std_deg, std_cm = _weak_directions(covariance, R_X, config)
     residual = _residuals(fit.x, A, B, R0, config.metric_camera, config)[:-3].reshape(-1, 6)

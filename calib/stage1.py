@@ -83,9 +83,7 @@ def initial_calibration(
     notes: list[str] = []
     seconds: dict[str, float] = {}
     frames = [seq[i] for i in range(len(seq))]
-    camera_times = np.array(
-        [f.timestamp if f.timestamp is not None else i / 10.0 for i, f in enumerate(frames)]
-    )
+    camera_times = np.asarray(seq.timestamps, np.float64)  # the reader's, 10 Hz where it has none
     lidar_times = np.array(
         [
             f.lidar_timestamp if f.lidar_timestamp is not None else camera_times[i]

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import tempfile
 import warnings
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -46,8 +45,7 @@ def load_checkpoint(ckpt: Path) -> tuple[SupportUNet, Contract]:
         ) from None
     net = SupportUNet(model_config)
     net.load_state_dict(weights)
-    contract = Contract(stride=net.stride, target=hparams.get("target", "agreement"))
-    return net.eval(), replace(contract, extra={"model": model_config.model_dump()})
+    return net.eval(), net.contract(hparams.get("target", "agreement"))
 
 
 def export_onnx(

@@ -25,7 +25,6 @@ from calib.data.io import write_image
 from calib.data.types import Frame
 from calib.errors import DataError
 from calib.geometry import calibration_error, perturb
-from calib.hand_eye import HandEyeResult
 from calib.matchers import build_matcher
 from calib.projection import project_scan
 from calib.stage1 import initial_calibration
@@ -120,16 +119,6 @@ def parse_init(text: str) -> tuple[str, object]:
     if kind == "stage1" and not arg:
         return "stage1", None
     raise DataError("--init", f"{text!r} is not perturb:CM,DEG, file:PATH or stage1")
-
-
-def _stage1_report(stage1: HandEyeResult) -> dict:
-    """What ``--init stage1`` found besides the extrinsic: its uncertainty and weak directions."""
-    return {
-        "T_cam_lidar": stage1.T_cam_lidar.tolist(),
-        "std_deg": stage1.std_deg.tolist(),
-        "std_cm": stage1.std_cm.tolist(),
-        "weak": [w.to_dict() for w in stage1.weak],
-    }
 
 
 def _summary(runs: list[dict]) -> dict:
@@ -301,13 +290,7 @@ def run_calibrate(
         "seed": seed,
         "runs_requested": runs,
         "frame_indices": picks.tolist(),
-        "stage1": None
-        if stage1 is None
-        else {
-            "weak": [w.to_dict() for w in stage1.weak],
-            "std_deg": stage1.std_deg.tolist(),
-            "std_cm": stage1.std_cm.tolist(),
-        },
+        "stage1": None if stage1 is None else stage1.report(),
         "results": results,
         "paired_vs_uniform": paired,
         "config": config.model_dump(mode="json"),

@@ -34,14 +34,12 @@ def load_stage1_config(path: Path | None = None) -> Stage1Config:
 
 def camera_trajectory(result: Stage1Result) -> tuple[np.ndarray, np.ndarray]:
     """Keyframe stamps ``(M,)`` and metric camera poses ``(M, 4, 4)`` ``T_cam0_cam``: the visual
-    odometry chained with each motion's length solved given the extrinsic."""
-    X = result.calibration.T_cam_lidar
+    odometry chained with the metric length the hand–eye solve found for each motion."""
     motions = [m for m, k in zip(result.motions, result.kept, strict=True) if k]
     pose, poses, times = np.eye(4), [np.eye(4)], [result.camera_times[motions[0].i]]
-    for motion, B in zip(motions, result.lidar_motions, strict=True):
+    for motion, scale in zip(motions, result.calibration.scales, strict=True):
         A = motion.T.copy()
-        # the length s with (R_A − I) t_X + s â = R_X t_B, in least squares
-        A[:3, 3] *= A[:3, 3] @ (X[:3, :3] @ B[:3, 3] - (A[:3, :3] - np.eye(3)) @ X[:3, 3])
+        A[:3, 3] *= scale
         pose = pose @ np.linalg.inv(A)  # T_cam0_camj = T_cam0_cami · T_cami_camj
         poses.append(pose)
         times.append(result.camera_times[motion.j])
@@ -100,6 +98,7 @@ def run_init_calib(
         T_ref = seq.calibration.T_cam_lidar
         he = result.calibration
         X = he.T_cam_lidar
+        error = calibration_error(X, T_ref) if T_ref is not None else None
         times, camera = camera_trajectory(result)
         first = interpolate_poses(result.lidar_times, result.lidar_poses, times[:1], np.inf)[0][0]
         lidar_in_cam0 = X @ np.linalg.inv(first) @ result.lidar_poses @ np.linalg.inv(X)
@@ -107,14 +106,12 @@ def run_init_calib(
             "T_cam_lidar": X.tolist(),
             "closed_form_T_cam_lidar": he.closed_form.tolist(),
             "reference_T_cam_lidar": T_ref.tolist() if T_ref is not None else None,
-            "error": calibration_error(X, T_ref).to_dict() if T_ref is not None else None,
+            "error": error.to_dict() if error else None,
             "closed_form_error": calibration_error(he.closed_form, T_ref).to_dict()
             if T_ref is not None
             else None,
-            "std_deg": he.std_deg.tolist(),
-            "std_cm": he.std_cm.tolist(),
+            **he.report(),
             "covariance": he.covariance.tolist(),
-            "weak": [w.to_dict() for w in he.weak],
             "observable": not he.weak,
             "frames": len(seq),
             "camera_motions": len(result.motions),
@@ -141,8 +138,8 @@ def run_init_calib(
             f"{seq.name}: Stage 1 trajectories, camera 0 frame",
         )
     line = f"Stage 1 on {len(seq)} frames in {output['runtime_s']:.1f} s"
-    if output["error"]:
-        line += f"; error against the reference {calibration_error(X, T_ref)}"
+    if error:
+        line += f"; error against the reference {error}"
     console.print(line, markup=False, highlight=False, soft_wrap=True)
     for weak in he.weak:
         console.print(f"weak: {weak}", markup=False, highlight=False, soft_wrap=True)

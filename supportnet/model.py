@@ -13,6 +13,8 @@ import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field
 from torch import nn
 
+from supportnet.contract import Contract
+
 __all__ = ["ModelConfig", "SupportUNet"]
 
 
@@ -76,6 +78,10 @@ class SupportUNet(nn.Module):
     def stride(self) -> int:
         """Input sizes are padded to a multiple of this."""
         return self.config.stem_stride * 2**self.config.depth
+
+    def contract(self, target: str = "agreement") -> Contract:
+        """The pre-processing contract an export of this network carries (its config included)."""
+        return Contract(stride=self.stride, target=target, extra={"model": self.config.model_dump()})
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         H, W = image.shape[-2:]

@@ -13,7 +13,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from supportnet.contract import Contract
 from supportnet.metrics import agreement_scores
 from supportnet.model import ModelConfig, SupportUNet
 from train.config import AugmentConfig, OptimConfig
@@ -43,7 +42,7 @@ class SupportModule(L.LightningModule):
         self.save_hyperparameters()
         self.net = SupportUNet(ModelConfig(**model))
         self.optim_config = OptimConfig(**optim)
-        self.contract = Contract(stride=self.net.stride, target=target, extra={"model": model})
+        self.contract = self.net.contract(target)
         aug = AugmentConfig(**augment)
         # geometric: image, target and weight stacked, so they move together
         self.geometric = KA.AugmentationSequential(
