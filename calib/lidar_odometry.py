@@ -6,7 +6,24 @@ from collections.abc import Iterable
 
 import numpy as np
 
-__all__ = ["drift", "lidar_odometry"]
+__all__ = ["drift", "lidar_odometry", "sensor_range"]
+
+
+def sensor_range(scans: list[np.ndarray], percentile: float = 99.5) -> float:
+    """The range a sensor actually sees, for KISS-ICP's ``max_range`` (whose default voxel size is
+    a hundredth of it): a vineyard's rows end within 25 m, where a 100 m setting would give 1 m
+    voxels that blur posts and canopy (measured: 4.5 cm against 0.9 cm median error per frame).
+
+    Args:
+        scans: a few ``(N, 3+)`` point clouds in the LiDAR frame.
+
+    Returns:
+        The ``percentile`` of their ranges, rounded up to a whole metre.
+    """
+    ranges = np.concatenate([np.linalg.norm(np.asarray(s)[:, :3], axis=1) for s in scans])
+    if not len(ranges):
+        raise ValueError("no points to take the sensor range from")
+    return float(np.ceil(np.percentile(ranges, percentile)))
 
 
 def lidar_odometry(

@@ -3,6 +3,13 @@
 LiDAR odometry (KISS-ICP) → visual odometry (OpenCV, up to scale) → LiDAR poses interpolated at
 the camera keyframes' time stamps → scaled hand–eye calibration with robust refinement and an
 observability report.
+
+Like MDPCalib, Stage 1 keeps the hand–eye rotation and, by default, not its translation: with a
+monocular camera each motion gives only a direction, and on a ground robot most motions hardly
+rotate, so ``(R_A − I) t_X`` is small and a bias of a degree in the visual directions (measured on
+our synthetic worlds, against ground truth) moves ``t_X`` by metres. The translation comes from a
+prior instead (the lever arm measured on the robot, zero by default) and Stage 4 refines it; the
+hand–eye translation and its error stay in the report (``translation: motion`` uses it).
 """
 
 from __future__ import annotations
@@ -10,13 +17,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib.data.types import Sequence
 from calib.hand_eye import HandEyeConfig, HandEyeResult, UnobservableError, hand_eye
-from calib.lidar_odometry import lidar_odometry
+from calib.lidar_odometry import lidar_odometry, sensor_range
 from calib.time_sync import interpolate_poses
 from calib.visual_odometry import CameraMotion, VisualOdometryConfig, visual_odometry
 
@@ -26,7 +34,9 @@ __all__ = ["LidarOdometryConfig", "Stage1Config", "Stage1Result", "initial_calib
 class LidarOdometryConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    max_range_m: float = Field(100.0, gt=0)
+    max_range_m: float | None = Field(
+        None, gt=0, description="None: from the data, the 99.5th percentile range of the first scans"
+    )
     min_range_m: float = Field(2.0, ge=0)
     voxel_size_m: float | None = Field(None, gt=0, description="None: KISS-ICP's default, max_range / 100")
     deskew: bool = Field(True, description="deskew with per-point times where the data has them")
@@ -43,6 +53,13 @@ class Stage1Config(BaseModel):
         0.15, gt=0, description="LiDAR poses farther apart are not interpolated across"
     )
     hand_eye: HandEyeConfig = HandEyeConfig()
+    translation: Literal["prior", "motion"] = Field(
+        "prior", description="where the extrinsic's translation comes from (see the module docstring)"
+    )
+    translation_prior_m: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0),
+        description="t of T_cam_lidar: the LiDAR origin in camera axes (x right, y down, z forward)",
+    )
 
 
 @dataclass(frozen=True)
@@ -50,7 +67,10 @@ class Stage1Result:
     """What Stage 1 found, with what it used.
 
     Attributes:
-        calibration: the hand–eye result (extrinsic, covariance, weak directions).
+        T_cam_lidar: ``(4, 4)`` Stage 1's extrinsic: the hand–eye rotation, the translation from
+            ``translation_source``.
+        translation_source: ``prior`` or ``motion``.
+        calibration: the hand–eye result (its own extrinsic, covariance, weak directions).
         lidar_poses: ``(F, 4, 4)`` ``T_lidar0_lidar`` at the LiDAR stamps.
         lidar_times, camera_times: ``(F,)`` seconds.
         motions: the camera keyframe motions (unit translations).
@@ -60,6 +80,8 @@ class Stage1Result:
         notes: facts a user should know (stamps assumed, planar motion).
     """
 
+    T_cam_lidar: np.ndarray
+    translation_source: str
     calibration: HandEyeResult
     lidar_poses: np.ndarray
     lidar_times: np.ndarray
@@ -96,10 +118,11 @@ def initial_calibration(
     say("LiDAR odometry (KISS-ICP)")
     start = time.perf_counter()
     deskew = config.lidar.deskew and all(f.point_times is not None for f in frames)
+    max_range = config.lidar.max_range_m or sensor_range([f.points for f in frames[:10]])
     lidar_poses = lidar_odometry(
         (f.points for f in frames),
         (f.point_times for f in frames) if deskew else None,
-        config.lidar.max_range_m,
+        max_range,
         config.lidar.min_range_m,
         config.lidar.voxel_size_m,
     )
@@ -121,7 +144,16 @@ def initial_calibration(
     B = np.linalg.inv(at_camera[kept, 1]) @ at_camera[kept, 0]  # T_lidar_j_lidar_i
     calibration = hand_eye(A, B, config.hand_eye)
     seconds["hand_eye"] = time.perf_counter() - start
+    T_cam_lidar = calibration.T_cam_lidar.copy()
+    if config.translation == "prior":
+        T_cam_lidar[:3, 3] = config.translation_prior_m
+        notes.append(
+            "translation from the prior (translation_prior_m), not from the monocular hand–eye solve: "
+            "Stage 4 refines it"
+        )
     return Stage1Result(
+        T_cam_lidar=T_cam_lidar,
+        translation_source=config.translation,
         calibration=calibration,
         lidar_poses=lidar_poses,
         lidar_times=lidar_times,

@@ -212,8 +212,8 @@ def run_calibrate(
             from supportnet.init_calib import load_stage1_config
 
             with console.status("Stage 1: initial extrinsic from motion"):
-                stage1 = initial_calibration(seq, load_stage1_config()).calibration
-            for weak in stage1.weak:
+                stage1 = initial_calibration(seq, load_stage1_config())
+            for weak in stage1.calibration.weak:
                 console.print(f"Stage 1 weak: {weak}", markup=False, highlight=False, soft_wrap=True)
             init_kind, init_arg = "file", stage1.T_cam_lidar
         picks = np.unique(np.linspace(0, len(seq) - 1, min(config.frames, len(seq))).round().astype(int))
@@ -290,7 +290,9 @@ def run_calibrate(
         "seed": seed,
         "runs_requested": runs,
         "frame_indices": picks.tolist(),
-        "stage1": None if stage1 is None else stage1.report(),
+        "stage1": None
+        if stage1 is None
+        else {"translation_source": stage1.translation_source, **stage1.calibration.report()},
         "results": results,
         "paired_vs_uniform": paired,
         "config": config.model_dump(mode="json"),

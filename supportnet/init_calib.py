@@ -97,19 +97,26 @@ def run_init_calib(
             result = initial_calibration(seq, config, lambda step: status.update(f"Stage 1: {step}"))
         T_ref = seq.calibration.T_cam_lidar
         he = result.calibration
-        X = he.T_cam_lidar
+        X = result.T_cam_lidar
         error = calibration_error(X, T_ref) if T_ref is not None else None
+        errors = {  # against the reference: what Stage 1 returns, and the hand–eye solve's own
+            name: calibration_error(T, T_ref).to_dict() if T_ref is not None else None
+            for name, T in (("hand_eye", he.T_cam_lidar), ("closed_form", he.closed_form))
+        }
         times, camera = camera_trajectory(result)
         first = interpolate_poses(result.lidar_times, result.lidar_poses, times[:1], np.inf)[0][0]
-        lidar_in_cam0 = X @ np.linalg.inv(first) @ result.lidar_poses @ np.linalg.inv(X)
+        # aligned by the hand–eye solve, whose scales chained the camera trajectory
+        X_he = he.T_cam_lidar
+        lidar_in_cam0 = X_he @ np.linalg.inv(first) @ result.lidar_poses @ np.linalg.inv(X_he)
         output = {
             "T_cam_lidar": X.tolist(),
+            "translation_source": result.translation_source,
+            "hand_eye_T_cam_lidar": he.T_cam_lidar.tolist(),
             "closed_form_T_cam_lidar": he.closed_form.tolist(),
             "reference_T_cam_lidar": T_ref.tolist() if T_ref is not None else None,
             "error": error.to_dict() if error else None,
-            "closed_form_error": calibration_error(he.closed_form, T_ref).to_dict()
-            if T_ref is not None
-            else None,
+            "hand_eye_error": errors["hand_eye"],
+            "closed_form_error": errors["closed_form"],
             **he.report(),
             "covariance": he.covariance.tolist(),
             "observable": not he.weak,
@@ -138,8 +145,11 @@ def run_init_calib(
             f"{seq.name}: Stage 1 trajectories, camera 0 frame",
         )
     line = f"Stage 1 on {len(seq)} frames in {output['runtime_s']:.1f} s"
+    line += f" (translation: {result.translation_source})"
     if error:
         line += f"; error against the reference {error}"
+        if result.translation_source == "prior":
+            line += f" (the hand–eye solve's own: {calibration_error(he.T_cam_lidar, T_ref)})"
     console.print(line, markup=False, highlight=False, soft_wrap=True)
     for weak in he.weak:
         console.print(f"weak: {weak}", markup=False, highlight=False, soft_wrap=True)

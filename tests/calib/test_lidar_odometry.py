@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from calib.lidar_odometry import drift, lidar_odometry
+from calib.lidar_odometry import drift, lidar_odometry, sensor_range
 from calib.synth.config import load_synth_config
 from calib.synth.generate import Synthesizer
 
@@ -29,3 +29,14 @@ def test_kiss_icp_follows_the_synthetic_street():
     result = drift(lidar_odometry(scans, max_range_m=60.0, voxel_size_m=0.6), synth.lidar_poses())
     assert result["path_m"] > 8.0
     assert result["drift_percent"] < 5.0 and result["rotation_drift_deg"] < 1.0
+
+
+def test_sensor_range_is_a_high_percentile_rounded_up():
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(1000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    scan = directions * np.linspace(1.0, 20.0, 1000)[:, None]  # ranges 1 … 20 m
+    assert sensor_range([scan], percentile=50.0) == 11.0  # 10.5 m rounded up
+    assert sensor_range([scan[:500], scan[500:]]) == 20.0
+    with pytest.raises(ValueError, match="no points"):
+        sensor_range([np.zeros((0, 3))])
