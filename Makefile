@@ -3,7 +3,7 @@ PY      := .venv/bin/python
 STAMP   := .venv/.installed
 TORCH   := torch==2.13.0
 
-.PHONY: demo test test-all bench lint clean model
+.PHONY: demo test test-all bench lint clean model flow-model
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -37,4 +37,8 @@ clean:
 # The shipped support predictor (supportnet/assets/support_unet.onnx and its model card), re-made
 # with fixed seeds: synthetic data and maps under build/model, then train, export and score.
 model: $(STAMP)
-	$(PY) -m train.recipe
+	$(PY) -m train.recipe support
+
+# The shipped flow matcher (supportnet/assets/flow_matcher.onnx and its card), from the same data.
+flow-model: $(STAMP)
+	$(PY) -m train.recipe flow

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -39,6 +40,7 @@ class CalibrateConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     matcher: Literal["edge", "flow"] = "edge"
+    flow_model: Path | None = Field(None, description="the flow matcher's ONNX file (None: the shipped one)")
     edge: EdgeMatcherConfig = EdgeMatcherConfig()
     support_map: Literal["support", "agreement"] = Field(
         "support",

@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy import ndimage
 
 from calib.data.types import Frame
-from calib.matching import Correspondences
+from calib.matching import Correspondences, working_view
 from calib.projection import ProjectedScan, Visibility, project_scan
 
 __all__ = ["EdgeMatcher", "EdgeMatcherConfig", "image_edges", "lidar_edges"]
@@ -378,27 +378,16 @@ class EdgeMatcher:
             T_cam_lidar: ``(4, 4)`` the extrinsic to project with.
         """
         cfg = self.config
-        H, W = frame.image_size
-        scale = min(1.0, cfg.working_focal_px / float(frame.K[0, 0]))
-        size = (max(1, round(H * scale)), max(1, round(W * scale)))
-        # pixel centres: u' = (u + 0.5) s' − 0.5 with the exact per-axis factor s' of the resize
-        s = np.array([size[1] / W, size[0] / H])
-        K = frame.K.copy()
-        K[:2] *= s[:, None]
-        K[:2, 2] += 0.5 * s - 0.5
-        image = (
-            frame.image
-            if size == (H, W)
-            else cv2.resize(frame.image, size[::-1], interpolation=cv2.INTER_AREA)
-        )
-        scan = project_scan(frame.points, T_cam_lidar, K, size, Visibility(window=3))
-        lidar, inverse_depth = lidar_edges(scan, frame.points, T_cam_lidar, K, cfg)
-        flow, signal, confidence = self.dense_flow(lidar, image_edges(image, cfg), inverse_depth)
+        view = working_view(frame, cfg.working_focal_px)
+        size = view.image.shape[:2]
+        scan = project_scan(frame.points, T_cam_lidar, view.K, size, Visibility(window=3))
+        lidar, inverse_depth = lidar_edges(scan, frame.points, T_cam_lidar, view.K, cfg)
+        flow, signal, confidence = self.dense_flow(lidar, image_edges(view.image, cfg), inverse_depth)
         r, c = np.rint(scan.uv[:, 1]).astype(int), np.rint(scan.uv[:, 0]).astype(int)
         keep = (signal[r, c] >= cfg.min_signal) & (confidence[r, c] >= cfg.min_confidence)
         index = scan.index[keep]
-        uv = (scan.uv[keep] + 0.5) / s - 0.5
-        residual = flow[:, r[keep], c[keep]].T / s
+        uv = view.to_frame(scan.uv[keep])
+        residual = flow[:, r[keep], c[keep]].T / view.scale
         points = frame.points[index, :3].astype(np.float64)
         return Correspondences(
             index.astype(np.int64),
@@ -406,5 +395,5 @@ class EdgeMatcher:
             uv,
             uv + residual,
             confidence[r[keep], c[keep]].astype(np.float32),
-            (H, W),
+            frame.image_size,
         )

@@ -11,11 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
+import cv2
 import numpy as np
 
 from calib.data.types import Frame
 
-__all__ = ["Correspondences", "Matcher"]
+__all__ = ["Correspondences", "Matcher", "WorkingView", "working_view"]
 
 
 @dataclass(frozen=True)
@@ -73,3 +74,38 @@ class Matcher(Protocol):
     def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
         """Correspondences of ``frame`` under ``T_cam_lidar (4, 4)``."""
         ...
+
+
+@dataclass(frozen=True)
+class WorkingView:
+    """A frame's image at the resolution a matcher works in.
+
+    Attributes:
+        image: ``(h, w, 3)`` uint8, resampled (area) where the frame's focal length is longer.
+        K: ``(3, 3)`` intrinsics of ``image``.
+        scale: ``(2,)`` exact per-axis factors (x, y) of the resize.
+    """
+
+    image: np.ndarray
+    K: np.ndarray
+    scale: np.ndarray
+
+    def to_frame(self, uv: np.ndarray) -> np.ndarray:
+        """``(N, 2)`` working pixels → the frame's pixels (pixel centres map onto pixel centres)."""
+        return (uv + 0.5) / self.scale - 0.5
+
+
+def working_view(frame: Frame, focal_px: float) -> WorkingView:
+    """The frame's image resampled so that its focal length is at most ``focal_px``, so a matcher's
+    pixel parameters (or a network's receptive field) mean the same angles on every camera."""
+    H, W = frame.image_size
+    factor = min(1.0, focal_px / float(frame.K[0, 0]))
+    size = (max(1, round(H * factor)), max(1, round(W * factor)))
+    # pixel centres: u' = (u + 0.5) s' − 0.5 with the exact per-axis factor s' of the resize
+    scale = np.array([size[1] / W, size[0] / H])
+    K = frame.K.copy()
+    K[:2] *= scale[:, None]
+    K[:2, 2] += 0.5 * scale - 0.5
+    if size == (H, W):
+        return WorkingView(frame.image, K, scale)
+    return WorkingView(cv2.resize(frame.image, size[::-1], interpolation=cv2.INTER_AREA), K, scale)

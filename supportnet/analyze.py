@@ -30,9 +30,9 @@ from calib.analysis import (
 from calib.data import open_dataset
 from calib.data.kitti_odometry import sequence_names
 from calib.errors import DataError, SupportnetError
-from calib.matchers import build_matcher
 from calib.projection import pixel_lookup
 from supportnet.maps import MapsConfig
+from supportnet.matchers import build_matcher
 from supportnet.outputs import atomic_output, progress_bar, resolved_config, write_json
 from supportnet.viz import class_residual_chart
 
@@ -81,7 +81,7 @@ def run_analyze(
         What ``classes.json`` holds.
     """
     console = console or Console(stderr=True)
-    matcher = build_matcher(config.matcher, config.edge)
+    matcher = build_matcher(config.matcher, config.edge, config.flow_model)
     if stride < 1:
         raise DataError("--stride", f"must be at least 1, got {stride}")
     data = Path(data)

@@ -25,9 +25,9 @@ from calib.data.io import write_image
 from calib.data.types import Frame
 from calib.errors import DataError
 from calib.geometry import calibration_error, perturb
-from calib.matchers import build_matcher
 from calib.projection import project_scan
 from calib.stage1 import initial_calibration
+from supportnet.matchers import build_matcher
 from supportnet.outputs import atomic_output, progress_bar, resolved_config, write_json
 from supportnet.predictor import SHIPPED_MODEL, SupportPredictor
 from supportnet.viz import colourise, draw_projection
@@ -197,7 +197,7 @@ def run_calibrate(
 ) -> dict:
     """Paired runs of Stage 4 for every support; returns what ``result.json`` holds."""
     console = console or Console(stderr=True)
-    matcher = build_matcher(config.matcher, config.edge)
+    matcher = build_matcher(config.matcher, config.edge, config.flow_model)
     if runs < 1:
         raise DataError("--runs", f"must be at least 1, got {runs}")
     supports = parse_supports(supports_text, config)

@@ -149,9 +149,26 @@ def train(
     run_train(load_train_config(config, overrides or []), overwrite)
 
 
+@app.command("train-flow")
+def train_flow(
+    config: Annotated[Path, typer.Option(help="Training config.")] = Path("configs/train_flow.yaml"),
+    overrides: Annotated[
+        list[str] | None,
+        typer.Argument(help="key.sub=value overrides, e.g. trainer.max_epochs=5 model.iterations=4."),
+    ] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Train the learned flow matcher (Lightning) on calibrated sequences: random extrinsic errors
+    and the flow they cause; checkpoints, logs, learning curves."""
+    from train.config import FlowTrainConfig, load_train_config
+    from train.run import run_train_flow
+
+    run_train_flow(load_train_config(config, overrides or [], FlowTrainConfig), overwrite)
+
+
 @app.command()
 def export(
-    ckpt: Annotated[Path, typer.Option(help="Checkpoint of `supportnet train`.")],
+    ckpt: Annotated[Path, typer.Option(help="Checkpoint of `supportnet train` or `train-flow`.")],
     out: Annotated[Path, typer.Option(help="ONNX file to write.")],
     opset: Annotated[int, typer.Option(help="ONNX opset (17 or newer).")] = 17,
     overwrite: Overwrite = False,

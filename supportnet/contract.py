@@ -27,7 +27,8 @@ class Contract:
         stride: the network pads inputs to a multiple of this (informational: it does so itself).
         target: which offline map it learned (``agreement`` or ``support``).
         layout: input layout, always ``NCHW`` float32 RGB.
-        output: ``logits``, one channel.
+        output: ``logits`` (a support predictor, one channel) or ``flow`` (a flow matcher: two
+            channels, pixels; its LiDAR input is described in ``extra``).
         version: of this contract.
     """
 
@@ -51,7 +52,7 @@ class Contract:
             raise ValueError(
                 f"unsupported contract version {data.get('version') if isinstance(data, dict) else data!r}"
             )
-        if data.get("layout") != "NCHW" or data.get("output") != "logits":
+        if data.get("layout") != "NCHW" or data.get("output") not in ("logits", "flow"):
             raise ValueError(f"unsupported layout/output {data.get('layout')}/{data.get('output')}")
         data["mean"], data["std"] = tuple(data["mean"]), tuple(data["std"])
         return cls(**data)

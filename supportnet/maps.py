@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 from rich.console import Console
 
 from calib.config import read_yaml, validate
@@ -22,8 +22,8 @@ from calib.data import open_dataset
 from calib.data.io import write_image
 from calib.edge_matcher import EdgeMatcherConfig
 from calib.errors import DataError
-from calib.matchers import build_matcher
 from calib.support import SupportConfig, SupportMaps, support_maps
+from supportnet.matchers import build_matcher
 from supportnet.outputs import progress_bar, resolved_config, write_json
 from supportnet.viz import colourise
 
@@ -38,6 +38,7 @@ class MapsConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     matcher: Literal["edge", "flow"] = "edge"
+    flow_model: Path | None = Field(None, description="the flow matcher's ONNX file (None: the shipped one)")
     edge: EdgeMatcherConfig = EdgeMatcherConfig()
     support: SupportConfig = SupportConfig()
 
@@ -71,7 +72,7 @@ def run_maps(
     """Match every frame under the reference calibration and accumulate support maps."""
     console = console or Console(stderr=True)
     out = Path(out)
-    matcher = build_matcher(config.matcher, config.edge)
+    matcher = build_matcher(config.matcher, config.edge, config.flow_model)
     if out.exists() and not overwrite:
         raise DataError(out, "already exists; pass --overwrite to replace it")
     partial = out.with_name(out.name + ".partial")

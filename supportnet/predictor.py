@@ -11,7 +11,7 @@ import onnxruntime as ort
 from calib.errors import DataError
 from supportnet.contract import METADATA_KEY, Contract
 
-__all__ = ["SHIPPED_MODEL", "SupportPredictor"]
+__all__ = ["SHIPPED_MODEL", "SupportPredictor", "open_model"]
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "assets" / "support_unet.onnx"
 """The small model trained on the synthetic worlds (``make model``), used by ``--support onnx``."""
@@ -30,25 +30,7 @@ class SupportPredictor:
 
     def __init__(self, model: str | Path = SHIPPED_MODEL, threads: int = 0) -> None:
         self.path = Path(model)
-        if not self.path.is_file():
-            raise DataError(self.path, "model file not found (make one with `supportnet export`)")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads
-        options.log_severity_level = 3
-        try:
-            self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own types for a non-ONNX file
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise DataError(self.path, f"is not a readable ONNX model ({first})") from None
-        meta = self.session.get_modelmeta().custom_metadata_map
-        if METADATA_KEY not in meta:
-            raise DataError(
-                self.path, f"has no '{METADATA_KEY}' metadata; export it with `supportnet export`"
-            )
-        try:
-            self.contract = Contract.from_json(meta[METADATA_KEY])
-        except (ValueError, TypeError, KeyError) as exc:
-            raise DataError(self.path, f"carries a contract this version cannot read ({exc})") from None
+        self.session, self.contract = open_model(self.path, "logits", threads)
         self.input_name = self.session.get_inputs()[0].name
 
     def predict(self, images: np.ndarray) -> np.ndarray:
@@ -62,3 +44,36 @@ class SupportPredictor:
         """
         (logits,) = self.session.run(None, {self.input_name: self.contract.preprocess(images)})
         return (1.0 / (1.0 + np.exp(-logits[:, 0]))).astype(np.float32)
+
+
+def open_model(path: Path, output: str, threads: int = 0) -> tuple[ort.InferenceSession, Contract]:
+    """An onnxruntime session of an exported supportnet model and its contract.
+
+    Args:
+        path: the ``.onnx`` file. output: what it must produce (``logits``: a support predictor,
+            ``flow``: a flow matcher). threads: intra-op threads (0: onnxruntime's default).
+
+    Raises:
+        DataError: the file is missing, is not an ONNX model, carries no supportnet contract, or
+            is the other kind of model.
+    """
+    if not path.is_file():
+        raise DataError(path, "model file not found (make one with `supportnet export`)")
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.log_severity_level = 3
+    try:
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own types for a non-ONNX file
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise DataError(path, f"is not a readable ONNX model ({first})") from None
+    meta = session.get_modelmeta().custom_metadata_map
+    if METADATA_KEY not in meta:
+        raise DataError(path, f"has no '{METADATA_KEY}' metadata; export it with `supportnet export`")
+    try:
+        contract = Contract.from_json(meta[METADATA_KEY])
+    except (ValueError, TypeError, KeyError) as exc:
+        raise DataError(path, f"carries a contract this version cannot read ({exc})") from None
+    if contract.output != output:
+        raise DataError(path, f"is a model with {contract.output!r} output; this needs {output!r}")
+    return session, contract

@@ -1,4 +1,5 @@
-"""``configs/train.yaml``: the support predictor's training, validated (a typo fails loudly)."""
+"""``configs/train.yaml`` (the support predictor) and ``configs/train_flow.yaml`` (the flow
+matcher): training configs, validated (a typo fails loudly)."""
 
 from __future__ import annotations
 
@@ -10,22 +11,28 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from calib.config import read_yaml, validate
 from calib.errors import DataError
+from supportnet.flow_model import FlowConfig
 from supportnet.model import ModelConfig
 
-__all__ = ["TrainConfig", "load_train_config"]
+__all__ = ["FlowTrainConfig", "TrainConfig", "load_train_config"]
 
 
 class _Group(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class Source(_Group):
-    """One sequence and its ``supportnet maps`` folder."""
+class SequenceSource(_Group):
+    """One calibrated sequence (its reference extrinsic is the ground truth)."""
 
     data: Path
     sequence: str | None = None
-    maps: Path
     split: Literal["train", "val"]
+
+
+class Source(SequenceSource):
+    """One sequence and its ``supportnet maps`` folder."""
+
+    maps: Path
 
 
 class DataConfig(_Group):
@@ -67,7 +74,7 @@ class TrainerConfig(_Group):
     precision: str = "32-true"
     max_epochs: int = Field(24, ge=1)
     max_time_min: float = Field(18.0, gt=0, description="stop training after this many minutes")
-    patience: int = Field(8, ge=1, description="early stopping on validation Pearson r")
+    patience: int = Field(8, ge=1, description="early stopping on the validation metric")
     logger: Literal["csv", "tensorboard"] = "csv"
     log_every_n_steps: int = Field(10, ge=1)
     threads: int = Field(0, ge=0, description="torch CPU threads (0: torch's default)")
@@ -84,6 +91,46 @@ class TrainConfig(_Group):
     trainer: TrainerConfig = TrainerConfig()
 
 
+class PerturbationConfig(_Group):
+    """Sizes (translation cm, rotation °) of the random extrinsic errors the flow is learned from:
+    a curriculum from ``start`` (first epoch) to ``end`` (last), each draw uniform up to the
+    epoch's bound; validation uses fixed draws of exactly ``val`` (Stage 4's default start)."""
+
+    start: tuple[float, float] = (30.0, 4.0)
+    end: tuple[float, float] = (6.0, 1.0)
+    val: tuple[float, float] = (10.0, 2.0)
+
+
+class FlowDataConfig(_Group):
+    sources: list[SequenceSource] = Field(min_length=2, description="split by sequence")
+    frame_stride: int = Field(2, ge=1, description="train on every k-th frame")
+    val_frame_stride: int = Field(8, ge=1, description="validate on every k-th held-out frame")
+    crop: tuple[int, int] = Field((128, 320), description="training crop (H, W)")
+    batch_size: int = Field(4, ge=1)
+    samples_per_epoch: int = Field(320, ge=1)
+    workers: int = Field(0, ge=0)
+    near_m: float = Field(2.0, gt=0, description="the LiDAR image holds near_m / depth")
+    working_focal_px: float = Field(360.0, gt=0, description="images are resampled to this focal length")
+    perturbation: PerturbationConfig = PerturbationConfig()
+
+
+class FlowAugmentConfig(_Group):
+    flip: float = Field(0.5, ge=0, le=1, description="mirror image, LiDAR image and flow together")
+    colour: float = Field(0.8, ge=0, le=1, description="colour jitter probability (image only)")
+    blur: float = Field(0.2, ge=0, le=1, description="Gaussian blur probability (image only)")
+
+
+class FlowTrainConfig(_Group):
+    seed: int = 0
+    out: Path = Field(Path("runs/flow"), description="checkpoints, logs and curves go here")
+    data: FlowDataConfig
+    model: FlowConfig = FlowConfig()
+    augment: FlowAugmentConfig = FlowAugmentConfig()
+    optim: OptimConfig = OptimConfig(lr=4e-4)
+    gamma: float = Field(0.8, gt=0, le=1, description="RAFT's weight decay over the refinement steps")
+    trainer: TrainerConfig = TrainerConfig()
+
+
 def _set(tree: dict, dotted: str, value: object) -> None:
     *parents, leaf = dotted.split(".")
     for key in parents:
@@ -94,12 +141,15 @@ def _set(tree: dict, dotted: str, value: object) -> None:
     tree[leaf] = value
 
 
-def load_train_config(path: Path, overrides: list[str] = ()) -> TrainConfig:
-    """The config in ``path`` with ``key.sub=value`` overrides (values parsed as YAML)."""
+def load_train_config(
+    path: Path, overrides: list[str] = (), schema: type[_Group] = TrainConfig
+) -> TrainConfig | FlowTrainConfig:
+    """The config in ``path`` with ``key.sub=value`` overrides (values parsed as YAML), validated
+    as ``schema`` (:class:`TrainConfig` or :class:`FlowTrainConfig`)."""
     data = read_yaml(path)
     for item in overrides:
         key, sep, text = item.partition("=")
         if not sep or not key:
             raise DataError("override", f"{item!r} is not key.sub=value")
         _set(data, key.strip(), yaml.safe_load(text))
-    return validate(TrainConfig, data, path)
+    return validate(schema, data, path)

@@ -17,7 +17,7 @@ from supportnet.metrics import agreement_scores
 from supportnet.model import ModelConfig, SupportUNet
 from train.config import AugmentConfig, OptimConfig
 
-__all__ = ["SupportModule", "weighted_bce"]
+__all__ = ["SupportModule", "one_cycle", "photometric", "weighted_bce"]
 
 VAL_PIXELS_PER_FRAME = 20_000
 """Validation keeps at most this many weighted pixels per frame (a fixed subsample) for ρ."""
@@ -49,11 +49,7 @@ class SupportModule(L.LightningModule):
             KA.RandomHorizontalFlip(p=aug.flip),
             KA.RandomAffine(degrees=3.0, translate=(0.05, 0.05), scale=(0.9, 1.1), p=aug.affine),
         )
-        # photometric: the image only
-        self.photometric = KA.AugmentationSequential(
-            KA.ColorJitter(0.3, 0.3, 0.3, 0.03, p=aug.colour),
-            KA.RandomGaussianBlur((5, 5), (0.1, 1.5), p=aug.blur),
-        )
+        self.photometric = photometric(aug.colour, aug.blur)  # the image only
         self.register_buffer("mean", torch.tensor(self.contract.mean).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(self.contract.std).view(1, 3, 1, 1), persistent=False)
         self._val: list[np.ndarray] = []
@@ -94,9 +90,19 @@ class SupportModule(L.LightningModule):
             self.log(f"val/{name}", float(np.nan_to_num(scores[name])), prog_bar=name == "pearson")
 
     def configure_optimizers(self) -> dict:
-        optimizer = torch.optim.AdamW(
-            self.parameters(), lr=self.optim_config.lr, weight_decay=self.optim_config.weight_decay
-        )
-        steps = self.trainer.estimated_stepping_batches
-        scheduler = torch.optim.lr_scheduler.OneCycleLR(optimizer, self.optim_config.lr, total_steps=steps)
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+        return one_cycle(self, self.optim_config)
+
+
+def photometric(colour: float, blur: float) -> KA.AugmentationSequential:
+    """Colour jitter and blur with these probabilities, for the RGB image only."""
+    return KA.AugmentationSequential(
+        KA.ColorJitter(0.3, 0.3, 0.3, 0.03, p=colour), KA.RandomGaussianBlur((5, 5), (0.1, 1.5), p=blur)
+    )
+
+
+def one_cycle(module: L.LightningModule, config: OptimConfig) -> dict:
+    """AdamW under a one-cycle schedule over the whole run, stepped per batch."""
+    optimizer = torch.optim.AdamW(module.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    steps = module.trainer.estimated_stepping_batches
+    scheduler = torch.optim.lr_scheduler.OneCycleLR(optimizer, config.lr, total_steps=steps)
+    return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}

@@ -1,4 +1,7 @@
-"""``make model``: the shipped support predictor, re-made from nothing with fixed seeds.
+"""``make model`` and ``make flow-model``: the shipped networks, re-made from nothing with fixed
+seeds (``python -m train.recipe support`` and ``... flow``).
+
+The support predictor:
 
 1. Synthetic sequences: three of each world to train on, one of each held out (seed 9).
 2. Offline support maps of each (Stage 3 under the reference calibration).
@@ -6,6 +9,10 @@
 4. Export to ONNX (checked) as ``supportnet/assets/support_unet.onnx``.
 5. Scores of the exported model on the held-out sequences against their offline maps, written
    with the training summary as the model card ``support_unet.json`` beside it.
+
+The flow matcher: the same synthetic sequences (no maps needed), trained with
+``configs/train_flow.yaml``, exported as ``supportnet/assets/flow_matcher.onnx`` with its card
+``flow_matcher.json`` (held-out endpoint errors by class).
 
 Steps whose output exists are skipped, so an interrupted run continues where it stopped.
 """
@@ -15,6 +22,7 @@ from __future__ import annotations
 import json
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 
@@ -22,19 +30,46 @@ import typer
 from rich.console import Console
 
 from export.onnx import export_onnx
+from supportnet.flow_matcher import SHIPPED_FLOW_MODEL
 from supportnet.maps import load_maps_config, run_maps
 from supportnet.outputs import write_json
 from supportnet.predict import run_predict
 from supportnet.predictor import SHIPPED_MODEL
 from supportnet.synth import run_synth
-from train.config import load_train_config
-from train.run import run_train
+from train.config import FlowTrainConfig, TrainConfig, load_train_config
+from train.run import run_train, run_train_flow
+
+app = typer.Typer(add_completion=False, no_args_is_help=True)
 
 ROOT = Path("build/model")
 SEQUENCES = {"01": 1, "02": 2, "03": 3, "09": 9}
 """Sequence name → world seed; ``09`` is held out (``configs/train.yaml`` lists the splits)."""
 
 
+def _synthesise(frames: int, console: Console, maps: bool) -> None:
+    """The synthetic sequences (and their offline maps), each skipped when it exists."""
+    for world in ("vineyard", "urban"):
+        for sequence, seed in SEQUENCES.items():
+            if not (ROOT / world / "sequences" / sequence).is_dir():
+                run_synth(world, frames, seed, ROOT / world, sequence, console=console)
+            folder = ROOT / "maps" / f"{world}_{sequence}"
+            if maps and not folder.is_dir():
+                run_maps(ROOT / world, sequence, folder, load_maps_config(), resume=True, console=console)
+
+
+def _trained(config: TrainConfig | FlowTrainConfig, run: Callable[..., dict], console: Console) -> dict:
+    """The training summary: read back when the run is complete, else trained now."""
+    summary_path = Path(config.out) / "summary.json"
+    if summary_path.is_file():
+        return json.loads(summary_path.read_text())
+    return run(config, overwrite=True, console=console)
+
+
+def _machine() -> str:
+    return f"{platform.machine()} {platform.system()}, python {platform.python_version()}"
+
+
+@app.command("support")
 def make_model(
     frames: Annotated[int, typer.Option(help="Frames per synthetic sequence.")] = 80,
     config: Annotated[Path, typer.Option(help="Training config.")] = Path("configs/train.yaml"),
@@ -42,21 +77,12 @@ def make_model(
         SHIPPED_MODEL
     ),
 ) -> None:
+    """The support predictor."""
     console = Console(stderr=True)
     start = time.perf_counter()
-    for world in ("vineyard", "urban"):
-        for sequence, seed in SEQUENCES.items():
-            if not (ROOT / world / "sequences" / sequence).is_dir():
-                run_synth(world, frames, seed, ROOT / world, sequence, console=console)
-            maps = ROOT / "maps" / f"{world}_{sequence}"
-            if not maps.is_dir():
-                run_maps(ROOT / world, sequence, maps, load_maps_config(), resume=True, console=console)
+    _synthesise(frames, console, maps=True)
     train_config = load_train_config(config)
-    summary_path = Path(train_config.out) / "summary.json"
-    if summary_path.is_file():
-        summary = json.loads(summary_path.read_text())
-    else:
-        summary = run_train(train_config, overwrite=True, console=console)
+    summary = _trained(train_config, run_train, console)
     report = export_onnx(Path(summary["best_checkpoint"]), out, overwrite=True)
     held_out = {}
     for source in (s for s in train_config.data.sources if s.split == "val"):
@@ -78,12 +104,47 @@ def make_model(
             k: summary[k] for k in ("train_frames", "val_frames", "epochs", "minutes", "best_val_pearson")
         },
         "held_out_scores": held_out,
-        "machine": f"{platform.machine()} {platform.system()}, python {platform.python_version()}",
+        "machine": _machine(),
         "recipe_minutes": (time.perf_counter() - start) / 60,
     }
     write_json(out.with_suffix(".json"), card)
     console.print(json.dumps(card["held_out_scores"], indent=1), markup=False, highlight=False)
 
 
+@app.command("flow")
+def make_flow_model(
+    frames: Annotated[int, typer.Option(help="Frames per synthetic sequence.")] = 80,
+    config: Annotated[Path, typer.Option(help="Training config.")] = Path("configs/train_flow.yaml"),
+    out: Annotated[Path, typer.Option(help="ONNX file to write; its model card goes beside it.")] = (
+        SHIPPED_FLOW_MODEL
+    ),
+) -> None:
+    """The flow matcher."""
+    console = Console(stderr=True)
+    start = time.perf_counter()
+    _synthesise(frames, console, maps=False)
+    train_config = load_train_config(config, [], FlowTrainConfig)
+    summary = _trained(train_config, run_train_flow, console)
+    report = export_onnx(Path(summary["best_checkpoint"]), out, overwrite=True)
+    card = {
+        "model": out.name,
+        "bytes": report["bytes"],
+        "onnx_parity_max_abs_diff": report["max_abs_diff"],
+        "contract": json.loads(report["contract"]),
+        "trained_on": [
+            f"{Path(s.data).name}_{s.sequence}" for s in train_config.data.sources if s.split == "train"
+        ],
+        "frames_per_sequence": frames,
+        "training": {
+            k: summary[k] for k in ("train_frames", "val_frames", "epochs", "minutes", "best_val_epe")
+        },
+        "held_out_last_epoch": {k: v for k, v in summary["final"].items() if k.startswith("val/")},
+        "machine": _machine(),
+        "recipe_minutes": (time.perf_counter() - start) / 60,
+    }
+    write_json(out.with_suffix(".json"), card)
+    console.print(json.dumps(card["held_out_last_epoch"], indent=1), markup=False, highlight=False)
+
+
 if __name__ == "__main__":
-    typer.run(make_model)
+    app()

@@ -1,8 +1,9 @@
-"""``supportnet train``: fit the support predictor with Lightning and keep what a user checks.
+"""``supportnet train`` and ``train-flow``: fit with Lightning and keep what a user checks.
 
 Writes into ``<out>`` (built as ``<out>.partial``, renamed when done): ``checkpoints/best.ckpt``
-(highest validation Pearson r) and ``last.ckpt``, Lightning's logs, ``learning_curves.png``,
-``summary.json`` (best scores, epochs, minutes) and the resolved ``config.yaml``.
+(best validation metric: the support predictor's Pearson r, the flow matcher's endpoint error) and
+``last.ckpt``, Lightning's logs, ``learning_curves.png``, ``summary.json`` (best scores, epochs,
+minutes) and the resolved ``config.yaml``.
 """
 
 from __future__ import annotations
@@ -23,11 +24,11 @@ from rich.console import Console
 from calib.errors import DataError
 from supportnet.outputs import resolved_config, write_json
 from supportnet.viz import learning_curves
-from train.config import TrainConfig
+from train.config import FlowTrainConfig, TrainConfig, TrainerConfig
 from train.data import SupportDataModule
 from train.module import SupportModule
 
-__all__ = ["run_train"]
+__all__ = ["run_train", "run_train_flow"]
 
 QUIET = (
     r".*overridden `on_after_batch_transfer`.*",  # intended: augmentation runs on the batch
@@ -45,7 +46,40 @@ logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_NoAdverts(
 
 
 def run_train(config: TrainConfig, overwrite: bool = False, console: Console | None = None) -> dict:
-    """Train; returns ``summary.json``'s content (with ``best_checkpoint`` under ``config.out``)."""
+    """Train the support predictor; returns ``summary.json``'s content (with ``best_checkpoint``)."""
+    module = SupportModule(
+        config.model.model_dump(), config.optim.model_dump(), config.augment.model_dump(), config.data.target
+    )
+    return _fit(config, SupportDataModule(config.data), module, "val/pearson", "max", overwrite, console)
+
+
+def run_train_flow(config: FlowTrainConfig, overwrite: bool = False, console: Console | None = None) -> dict:
+    """Train the flow matcher; returns ``summary.json``'s content (with ``best_checkpoint``)."""
+    from train.flow_data import FlowDataModule
+    from train.flow_module import FlowModule
+
+    module = FlowModule(
+        config.model.model_dump(),
+        config.optim.model_dump(),
+        config.augment.model_dump(),
+        config.gamma,
+        config.data.near_m,
+        config.data.working_focal_px,
+    )
+    return _fit(config, FlowDataModule(config.data), module, "val/epe", "min", overwrite, console)
+
+
+def _fit(
+    config: TrainConfig | FlowTrainConfig,
+    data: L.LightningDataModule,
+    module: L.LightningModule,
+    monitor: str,
+    mode: str,
+    overwrite: bool,
+    console: Console | None,
+) -> dict:
+    """The training run both share: output folder, seeding, checkpoints on ``monitor``, early
+    stopping, logs, curves and the summary."""
     console = console or Console(stderr=True)
     out = Path(config.out)
     if out.exists() and not overwrite:
@@ -57,34 +91,17 @@ def run_train(config: TrainConfig, overwrite: bool = False, console: Console | N
     L.seed_everything(config.seed, workers=True, verbose=False)
     if config.trainer.threads:
         torch.set_num_threads(config.trainer.threads)
-    data = SupportDataModule(config.data)
     data.setup()
     console.print(
         f"training on {len(data.train)} frames, validating on {len(data.val)} held-out frames",
         markup=False,
         highlight=False,
     )
-    module = SupportModule(
-        config.model.model_dump(), config.optim.model_dump(), config.augment.model_dump(), config.data.target
-    )
-    t = config.trainer
-    logger = (CSVLogger if t.logger == "csv" else TensorBoardLogger)(partial, name="logs", version="")
     best = ModelCheckpoint(
-        partial / "checkpoints", filename="best", monitor="val/pearson", mode="max", save_last=True
+        partial / "checkpoints", filename="best", monitor=monitor, mode=mode, save_last=True
     )
-    trainer = L.Trainer(
-        accelerator=t.accelerator,
-        devices=t.devices,
-        strategy=t.strategy,
-        precision=t.precision,
-        max_epochs=t.max_epochs,
-        max_time={"minutes": t.max_time_min},
-        logger=logger,
-        callbacks=[best, EarlyStopping("val/pearson", mode="max", patience=t.patience)],
-        log_every_n_steps=t.log_every_n_steps,
-        fast_dev_run=t.fast_dev_run,
-        deterministic=True,
-        enable_model_summary=False,
+    trainer = _trainer(
+        config.trainer, partial, [best, EarlyStopping(monitor, mode=mode, patience=config.trainer.patience)]
     )
     start = time.perf_counter()
     with warnings.catch_warnings():
@@ -94,17 +111,18 @@ def run_train(config: TrainConfig, overwrite: bool = False, console: Console | N
     minutes = (time.perf_counter() - start) / 60
     if trainer.global_rank != 0:
         return {}
+    key = "best_" + monitor.replace("/", "_")
     summary = {
         "train_frames": len(data.train),
         "val_frames": len(data.val),
         "epochs": trainer.current_epoch,
         "minutes": minutes,
-        "best_val_pearson": float(best.best_model_score) if best.best_model_score is not None else None,
+        key: float(best.best_model_score) if best.best_model_score is not None else None,
         "final": {k: float(v) for k, v in trainer.callback_metrics.items()},
         "best_checkpoint": str(out / "checkpoints" / "best.ckpt") if best.best_model_path else None,
         "last_checkpoint": str(out / "checkpoints" / "last.ckpt"),
     }
-    if t.fast_dev_run:  # no checkpoints in a fast dev run: keep the weights to export them
+    if config.trainer.fast_dev_run:  # no checkpoints in a fast dev run: keep the weights to export them
         trainer.save_checkpoint(partial / "checkpoints" / "last.ckpt")
     metrics = partial / "logs" / "metrics.csv"
     if metrics.is_file():
@@ -113,10 +131,29 @@ def run_train(config: TrainConfig, overwrite: bool = False, console: Console | N
     if out.exists():
         shutil.rmtree(out)
     os.replace(partial, out)
+    score = summary[key] if summary[key] is not None else float("nan")
     console.print(
-        f"trained {summary['epochs']} epochs in {minutes:.1f} min; best validation Pearson r "
-        f"{summary['best_val_pearson'] or float('nan'):.3f}; checkpoints in {out / 'checkpoints'}",
+        f"trained {summary['epochs']} epochs in {minutes:.1f} min; best {monitor} {score:.3f}; "
+        f"checkpoints in {out / 'checkpoints'}",
         markup=False,
         highlight=False,
     )
     return summary
+
+
+def _trainer(t: TrainerConfig, root: Path, callbacks: list) -> L.Trainer:
+    logger = (CSVLogger if t.logger == "csv" else TensorBoardLogger)(root, name="logs", version="")
+    return L.Trainer(
+        accelerator=t.accelerator,
+        devices=t.devices,
+        strategy=t.strategy,
+        precision=t.precision,
+        max_epochs=t.max_epochs,
+        max_time={"minutes": t.max_time_min},
+        logger=logger,
+        callbacks=callbacks,
+        log_every_n_steps=t.log_every_n_steps,
+        fast_dev_run=t.fast_dev_run,
+        deterministic=True,
+        enable_model_summary=False,
+    )

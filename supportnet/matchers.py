@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from calib.edge_matcher import EdgeMatcher, EdgeMatcherConfig
 from calib.errors import SupportnetError
 from calib.matching import Matcher
@@ -9,10 +11,13 @@ from calib.matching import Matcher
 __all__ = ["build_matcher"]
 
 
-def build_matcher(name: str, edge: EdgeMatcherConfig) -> Matcher:
-    """The matcher ``name`` (``edge``; ``flow`` once the learned matcher exists)."""
+def build_matcher(name: str, edge: EdgeMatcherConfig, flow_model: Path | None = None) -> Matcher:
+    """The matcher ``name``: ``edge`` (training-free) or ``flow`` (the learned one, from
+    ``flow_model`` or, when ``None``, the shipped model)."""
     if name == "edge":
         return EdgeMatcher(edge)
     if name == "flow":
-        raise SupportnetError("--matcher flow: the learned flow matcher is not built yet; use --matcher edge")
+        from supportnet.flow_matcher import SHIPPED_FLOW_MODEL, FlowMatcher
+
+        return FlowMatcher(flow_model or SHIPPED_FLOW_MODEL)
     raise SupportnetError(f"--matcher {name}: unknown matcher (edge or flow)")

@@ -1,0 +1,139 @@
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from calib.data import open_dataset
+from calib.edge_matcher import EdgeMatcherConfig
+from calib.errors import DataError
+from calib.synth.config import load_synth_config
+from calib.synth.generate import Synthesizer, write_sequence
+from export.onnx import export_onnx
+from supportnet.flow_matcher import FlowMatcher
+from supportnet.matchers import build_matcher
+from train.config import FlowDataConfig, FlowTrainConfig, load_train_config
+from train.flow_data import curriculum_bound, flow_sample, load_scans
+from train.flow_module import sequence_loss
+from train.run import run_train_flow
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """Two 3-frame sequences of different worlds: one to train on, one held out."""
+    root = tmp_path_factory.mktemp("tiny_flow")
+    sources = []
+    for world, sequence, split in (("vineyard", "00", "train"), ("urban", "01", "val")):
+        write_sequence(Synthesizer(load_synth_config(world), 3, seed=1), root / world, sequence)
+        sources.append({"data": str(root / world), "sequence": sequence, "split": split})
+    return root, sources
+
+
+def test_true_flow_of_a_known_camera_shift(tiny):
+    root, sources = tiny
+    config = FlowDataConfig(sources=[*sources])
+    frames = load_scans(config.sources[0], 1, config.working_focal_px)
+    T_ref = frames.T[0]
+    same = flow_sample(frames, 0, T_ref, config.near_m)
+    assert same["valid"].sum() > 1000 and same["flow"].abs().max() < 1e-6  # no error, no flow
+    shift = np.eye(4)
+    shift[0, 3] = 0.05  # the perturbed camera sees every point 5 cm further right: u grows by f·d/z
+    moved = flow_sample(frames, 0, shift @ T_ref, config.near_m)
+    valid = (moved["valid"][0] > 0) & (moved["lidar"][1] < 1)  # nearer than near_m saturates
+    depth = config.near_m / moved["lidar"][1][valid]  # the LiDAR image stores near_m / depth
+    fx = frames.K[0, 0, 0]
+    assert torch.allclose(
+        moved["flow"][0][valid] * depth, torch.full_like(depth, -fx * 0.05), rtol=1e-3, atol=1e-3
+    )
+    assert torch.allclose(moved["flow"][1][valid], torch.zeros_like(depth), atol=1e-6)
+    assert set(moved["label"][0][valid].unique().int().tolist()) <= {
+        10,
+        50,
+        51,
+        52,
+        70,
+        71,
+        72,
+        80,
+        81,
+        99,
+        100,
+    }
+
+
+def test_curriculum_goes_from_large_to_small(tiny):
+    config = FlowDataConfig(sources=tiny[1], perturbation={"start": (30, 4), "end": (6, 1)})
+    assert curriculum_bound(config, 0, 10) == pytest.approx((30, 4))
+    assert curriculum_bound(config, 9, 10) == pytest.approx((6, 1))
+    middle = curriculum_bound(config, 4, 9)  # geometric: the square root of start · end
+    assert middle == pytest.approx((np.sqrt(180), 2))
+
+
+def test_sequence_loss_weights_later_steps_more():
+    target, valid = torch.zeros(1, 2, 3, 3), torch.zeros(1, 1, 3, 3)
+    valid[0, 0, 1, 1] = 1
+    flows = [torch.ones(1, 2, 3, 3), 2 * torch.ones(1, 2, 3, 3)]
+    # L1 of (1, 1) is 2, of (2, 2) is 4; γ = 0.5: 0.5 · 2 + 1 · 4
+    assert sequence_loss(flows, target, valid, 0.5) == pytest.approx(5.0)
+
+
+def test_train_flow_fast_dev_run_exports_and_matches(tiny, tmp_path):
+    root, sources = tiny
+    path = tmp_path / "train_flow.yaml"
+    path.write_text(
+        json.dumps(
+            {
+                "out": str(tmp_path / "run"),
+                "data": {
+                    "sources": sources,
+                    "crop": [64, 96],
+                    "batch_size": 2,
+                    "samples_per_epoch": 2,
+                    "val_frame_stride": 1,
+                },
+                "model": {
+                    "feature_dim": 16,
+                    "hidden_dim": 16,
+                    "context_dim": 8,
+                    "levels": 2,
+                    "radius": 2,
+                    "iterations": 2,
+                },
+            }
+        )
+    )
+    config = load_train_config(path, ["trainer.fast_dev_run=true"], FlowTrainConfig)
+    summary = run_train_flow(config)
+    assert summary["train_frames"] == 2 and summary["val_frames"] == 3  # frame stride 2 of 3; every frame
+    report = export_onnx(tmp_path / "run" / "checkpoints" / "last.ckpt", tmp_path / "flow.onnx")
+    assert report["max_abs_diff"] <= 1e-4
+    matcher = build_matcher("flow", EdgeMatcherConfig(), tmp_path / "flow.onnx")
+    assert isinstance(matcher, FlowMatcher) and matcher.near_m == 2.0
+    with open_dataset(root / "urban", sequence="01") as seq:
+        frame = seq[0]
+        corr = matcher.match(frame, frame.calibration.T_cam_lidar)
+    assert len(corr) > 1000 and corr.image_size == frame.image_size
+    assert np.all(np.isfinite(corr.residual))
+    assert (corr.uv >= -0.5).all() and (corr.uv[:, 0] <= frame.image_size[1] - 0.5).all()
+
+
+def test_flow_matcher_refuses_other_files(tmp_path):
+    with pytest.raises(DataError, match="model file not found"):
+        FlowMatcher(tmp_path / "missing.onnx")
+    (tmp_path / "text.onnx").write_text("not a model")
+    with pytest.raises(DataError, match="not a readable ONNX model"):
+        FlowMatcher(tmp_path / "text.onnx")
+
+
+def test_a_support_model_is_not_a_flow_matcher():
+    from supportnet.predictor import SHIPPED_MODEL
+
+    with pytest.raises(DataError, match="'logits' output; this needs 'flow'"):
+        FlowMatcher(SHIPPED_MODEL)
+
+
+def test_a_typo_in_the_flow_config_fails_loudly(tiny, tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text(json.dumps({"data": {"sources": tiny[1], "crops": [64, 96]}}))
+    with pytest.raises(DataError, match="crops"):
+        load_train_config(path, [], FlowTrainConfig)

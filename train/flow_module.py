@@ -1,0 +1,108 @@
+"""``FlowModule``: the Lightning training system around :class:`FlowNet`.
+
+Loss (RAFT Eq. 7): ``Σ_i γ^(N−i) ‖f_gt − f_i‖₁`` over the refinement steps, on LiDAR pixels only
+(elsewhere there is no point, so no flow to learn). Validation: endpoint error of the last step on
+whole held-out frames under fixed extrinsic errors, overall and split by class (rigid structure,
+foliage), beside the error of predicting no flow at all.
+"""
+
+from __future__ import annotations
+
+import lightning as L
+import numpy as np
+import torch
+
+from calib.synth.generate import RIGID_CLASSES
+from supportnet.flow_model import FlowConfig, FlowNet
+from train.config import FlowAugmentConfig, OptimConfig
+from train.module import one_cycle, photometric
+
+__all__ = ["FOLIAGE_CLASSES", "FlowModule", "sequence_loss"]
+
+FOLIAGE_CLASSES = {70}
+"""Vegetation (the synthetic worlds' swaying leaves), the class CMRNext-style matching finds hard."""
+
+
+def sequence_loss(
+    flows: list[torch.Tensor], target: torch.Tensor, valid: torch.Tensor, gamma: float
+) -> torch.Tensor:
+    """RAFT Eq. 7 on the valid pixels: ``Σ_i γ^(N−i) mean_valid ‖f_gt − f_i‖₁``."""
+    n = len(flows)
+    count = valid.sum().clamp_min(1.0)
+    return sum(
+        gamma ** (n - 1 - i) * ((f - target).abs().sum(1, keepdim=True) * valid).sum() / count
+        for i, f in enumerate(flows)
+    )
+
+
+class FlowModule(L.LightningModule):
+    """Trains a :class:`FlowNet` on perturbed projections (:mod:`train.flow_data`).
+
+    Args:
+        model: network config. optim: learning rate and weight decay. augment: probabilities.
+        gamma: RAFT's step weight. near_m, working_focal_px: the data's LiDAR encoding and
+            resolution, stored in the exported contract.
+    """
+
+    def __init__(
+        self, model: dict, optim: dict, augment: dict, gamma: float, near_m: float, working_focal_px: float
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.net = FlowNet(FlowConfig(**model))
+        self.optim_config = OptimConfig(**optim)
+        self.augment = FlowAugmentConfig(**augment)
+        self.photometric = photometric(self.augment.colour, self.augment.blur)
+        self.contract = self.net.contract(near_m, working_focal_px)
+        self.register_buffer("mean", torch.tensor(self.contract.mean).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(self.contract.std).view(1, 3, 1, 1), persistent=False)
+        self._val: list[np.ndarray] = []
+
+    def forward(self, image: torch.Tensor, lidar: torch.Tensor, all_iterations: bool = False):
+        """``image (B, 3, H, W)`` RGB in [0, 1] (normalised per the contract), ``lidar (B, 3, H, W)``."""
+        return self.net((image - self.mean) / self.std, lidar, all_iterations)
+
+    def on_train_epoch_start(self) -> None:
+        self.trainer.datamodule.set_epoch(self.current_epoch, self.trainer.max_epochs)
+
+    def on_after_batch_transfer(self, batch: dict, dataloader_idx: int) -> dict:
+        if not self.training:
+            return batch
+        batch = dict(batch)
+        mirror = torch.rand(len(batch["image"]), device=self.device) < self.augment.flip
+        for key in ("image", "lidar", "flow", "valid", "label"):  # a mirrored world, flow x negated
+            batch[key] = torch.where(mirror.view(-1, 1, 1, 1), batch[key].flip(-1), batch[key])
+        sign = torch.ones(len(mirror), 2, 1, 1, dtype=batch["flow"].dtype, device=self.device)
+        sign[:, 0] = torch.where(mirror, -1.0, 1.0).view(-1, 1, 1)
+        batch["flow"] = batch["flow"] * sign
+        batch["image"] = self.photometric(batch["image"]).clamp(0, 1)
+        return batch
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        flows = self(batch["image"], batch["lidar"], all_iterations=True)
+        loss = sequence_loss(flows, batch["flow"], batch["valid"], self.hparams.gamma)
+        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True)
+        return loss
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        flow = self(batch["image"], batch["lidar"])
+        valid = batch["valid"][:, 0] > 0
+        epe = (flow - batch["flow"]).norm(dim=1)[valid]
+        zero = batch["flow"].norm(dim=1)[valid]
+        self._val.append(torch.stack([epe, zero, batch["label"][:, 0][valid]]).cpu().numpy())
+
+    def on_validation_epoch_end(self) -> None:
+        if not self._val:
+            return
+        epe, zero, label = np.concatenate(self._val, axis=1)
+        self._val.clear()
+        rigid, foliage = np.isin(label, list(RIGID_CLASSES)), np.isin(label, list(FOLIAGE_CLASSES))
+        self.log("val/epe", float(epe.mean()), prog_bar=True)
+        self.log("val/epe_median", float(np.median(epe)))
+        self.log("val/epe_zero", float(np.median(zero)))
+        for name, mask in (("rigid", rigid), ("foliage", foliage)):
+            if mask.any():
+                self.log(f"val/epe_{name}", float(np.median(epe[mask])))
+
+    def configure_optimizers(self) -> dict:
+        return one_cycle(self, self.optim_config)
