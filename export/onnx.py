@@ -25,7 +25,7 @@ from supportnet.flow_model import LIDAR_CHANNELS, FlowConfig, FlowNet
 from supportnet.model import ModelConfig, SupportUNet
 from supportnet.predictor import open_model
 
-__all__ = ["export_flow_network", "export_network", "export_onnx", "load_checkpoint"]
+__all__ = ["export_network", "export_onnx", "load_checkpoint"]
 
 EXPORT_SIZE = (128, 320)
 CHECK_SHAPE = (2, 3, 97, 203)
@@ -71,43 +71,32 @@ def export_onnx(
     if opset < 17:
         raise DataError("--opset", f"must be 17 or newer, got {opset}")
     net, contract = load_checkpoint(ckpt)
-    export = export_flow_network if contract.output == "flow" else export_network
-    return export(net, contract, Path(out), opset, tolerance, {"source_checkpoint": str(ckpt)})
+    return export_network(net, contract, Path(out), opset, tolerance, {"source_checkpoint": str(ckpt)})
+
+
+DOCS = {
+    "logits": "supportnet support predictor: normalised RGB (NCHW) -> support logits",
+    "flow": "supportnet flow matcher: normalised RGB and LiDAR image (NCHW) -> flow in pixels",
+}
 
 
 def export_network(
-    net: SupportUNet,
+    net: nn.Module,
     contract: Contract,
     out: Path,
     opset: int = 17,
     tolerance: float = 1e-4,
     props: dict | None = None,
 ) -> dict:
-    """Export a support predictor (eval mode) with ``contract`` in its metadata, check it, write
-    ``out``."""
+    """Export a support predictor or a flow matcher (eval mode; ``contract.output`` says which) with
+    ``contract`` in its metadata, check it, write ``out``."""
     rng = np.random.default_rng(0)
     images = rng.integers(0, 256, (CHECK_SHAPE[0], *CHECK_SHAPE[2:], 3), dtype=np.uint8)
     check = {"image": contract.preprocess(images)}
-    doc = "supportnet support predictor: normalised RGB (NCHW) -> support logits"
-    return _export(net, contract, out, check, "logits", doc, opset, tolerance, props)
-
-
-def export_flow_network(
-    net: FlowNet,
-    contract: Contract,
-    out: Path,
-    opset: int = 17,
-    tolerance: float = 1e-4,
-    props: dict | None = None,
-) -> dict:
-    """Export a flow matcher (eval mode) with ``contract`` in its metadata, check it, write ``out``."""
-    rng = np.random.default_rng(0)
-    images = rng.integers(0, 256, (CHECK_SHAPE[0], *CHECK_SHAPE[2:], 3), dtype=np.uint8)
-    lidar = rng.random((CHECK_SHAPE[0], len(LIDAR_CHANNELS), *CHECK_SHAPE[2:]), dtype=np.float32)
-    lidar *= lidar[:, :1] > 0.9  # sparse, as a projected scan is
-    check = {"image": contract.preprocess(images), "lidar": lidar}
-    doc = "supportnet flow matcher: normalised RGB and LiDAR image (NCHW) -> flow in pixels"
-    return _export(net, contract, out, check, "flow", doc, opset, tolerance, props)
+    if contract.output == "flow":
+        lidar = rng.random((CHECK_SHAPE[0], len(LIDAR_CHANNELS), *CHECK_SHAPE[2:]), dtype=np.float32)
+        check["lidar"] = lidar * (lidar[:, :1] > 0.9)  # sparse, as a projected scan is
+    return _export(net, contract, out, check, contract.output, opset, tolerance, props)
 
 
 def _export(
@@ -116,7 +105,6 @@ def _export(
     out: Path,
     check: dict[str, np.ndarray],
     output: str,
-    doc: str,
     opset: int,
     tolerance: float,
     props: dict | None,
@@ -144,7 +132,7 @@ def _export(
             )
         model = onnx.load(str(tmp))
         onnx.checker.check_model(model, full_check=True)
-        model.doc_string = doc
+        model.doc_string = DOCS[output]
         onnx.helper.set_model_props(model, {METADATA_KEY: contract.to_json(), **(props or {})})
         onnx.save(model, str(tmp))
         session, read_back = open_model(tmp, output)

@@ -96,8 +96,8 @@ class PerturbationConfig(_Group):
     a curriculum from ``start`` (first epoch) to ``end`` (last), each draw uniform up to the
     epoch's bound; validation uses fixed draws of exactly ``val`` (Stage 4's default start)."""
 
-    start: tuple[float, float] = (30.0, 4.0)
-    end: tuple[float, float] = (6.0, 1.0)
+    start: tuple[float, float] = (20.0, 3.0)
+    end: tuple[float, float] = (5.0, 1.0)
     val: tuple[float, float] = (10.0, 2.0)
 
 
@@ -107,7 +107,7 @@ class FlowDataConfig(_Group):
     val_frame_stride: int = Field(8, ge=1, description="validate on every k-th held-out frame")
     crop: tuple[int, int] = Field((128, 320), description="training crop (H, W)")
     batch_size: int = Field(4, ge=1)
-    samples_per_epoch: int = Field(320, ge=1)
+    samples_per_epoch: int = Field(640, ge=1)
     workers: int = Field(0, ge=0)
     near_m: float = Field(2.0, gt=0, description="the LiDAR image holds near_m / depth")
     working_focal_px: float = Field(360.0, gt=0, description="images are resampled to this focal length")
@@ -126,7 +126,7 @@ class FlowTrainConfig(_Group):
     data: FlowDataConfig
     model: FlowConfig = FlowConfig()
     augment: FlowAugmentConfig = FlowAugmentConfig()
-    optim: OptimConfig = OptimConfig(lr=4e-4)
+    optim: OptimConfig = OptimConfig(lr=1e-3)
     gamma: float = Field(0.8, gt=0, le=1, description="RAFT's weight decay over the refinement steps")
     trainer: TrainerConfig = TrainerConfig()
 

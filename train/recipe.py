@@ -65,8 +65,27 @@ def _trained(config: TrainConfig | FlowTrainConfig, run: Callable[..., dict], co
     return run(config, overwrite=True, console=console)
 
 
-def _machine() -> str:
-    return f"{platform.machine()} {platform.system()}, python {platform.python_version()}"
+def _card(
+    out: Path,
+    report: dict,
+    config: TrainConfig | FlowTrainConfig,
+    frames: int,
+    summary: dict,
+    best: str,
+    start: float,
+) -> dict:
+    """The model card's common part: the file, its checks, what it was trained on and how long."""
+    return {
+        "model": out.name,
+        "bytes": report["bytes"],
+        "onnx_parity_max_abs_diff": report["max_abs_diff"],
+        "contract": json.loads(report["contract"]),
+        "trained_on": [f"{Path(x.data).name}_{x.sequence}" for x in config.data.sources if x.split != "val"],
+        "frames_per_sequence": frames,
+        "training": {k: summary[k] for k in ("train_frames", "val_frames", "epochs", "minutes", best)},
+        "machine": f"{platform.machine()} {platform.system()}, python {platform.python_version()}",
+        "recipe_minutes": (time.perf_counter() - start) / 60,
+    }
 
 
 @app.command("support")
@@ -91,22 +110,8 @@ def make_model(
             out, source.data, source.sequence, ROOT / "predicted" / name, source.maps, True, console
         )
         held_out[name] = {k: scores[k] for k in ("per_frame", "sequence_map")}
-    card = {
-        "model": out.name,
-        "bytes": report["bytes"],
-        "onnx_parity_max_abs_diff": report["max_abs_diff"],
-        "contract": json.loads(report["contract"]),
-        "trained_on": [
-            f"{Path(s.data).name}_{s.sequence}" for s in train_config.data.sources if s.split == "train"
-        ],
-        "frames_per_sequence": frames,
-        "training": {
-            k: summary[k] for k in ("train_frames", "val_frames", "epochs", "minutes", "best_val_pearson")
-        },
-        "held_out_scores": held_out,
-        "machine": _machine(),
-        "recipe_minutes": (time.perf_counter() - start) / 60,
-    }
+    card = _card(out, report, train_config, frames, summary, "best_val_pearson", start)
+    card["held_out_scores"] = held_out
     write_json(out.with_suffix(".json"), card)
     console.print(json.dumps(card["held_out_scores"], indent=1), markup=False, highlight=False)
 
@@ -126,22 +131,8 @@ def make_flow_model(
     train_config = load_train_config(config, [], FlowTrainConfig)
     summary = _trained(train_config, run_train_flow, console)
     report = export_onnx(Path(summary["best_checkpoint"]), out, overwrite=True)
-    card = {
-        "model": out.name,
-        "bytes": report["bytes"],
-        "onnx_parity_max_abs_diff": report["max_abs_diff"],
-        "contract": json.loads(report["contract"]),
-        "trained_on": [
-            f"{Path(s.data).name}_{s.sequence}" for s in train_config.data.sources if s.split == "train"
-        ],
-        "frames_per_sequence": frames,
-        "training": {
-            k: summary[k] for k in ("train_frames", "val_frames", "epochs", "minutes", "best_val_epe")
-        },
-        "held_out_last_epoch": {k: v for k, v in summary["final"].items() if k.startswith("val/")},
-        "machine": _machine(),
-        "recipe_minutes": (time.perf_counter() - start) / 60,
-    }
+    card = _card(out, report, train_config, frames, summary, "best_val_epe", start)
+    card["held_out_last_epoch"] = {k: v for k, v in summary["final"].items() if k.startswith("val/")}
     write_json(out.with_suffix(".json"), card)
     console.print(json.dumps(card["held_out_last_epoch"], indent=1), markup=False, highlight=False)
 

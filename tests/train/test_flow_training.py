@@ -7,8 +7,6 @@ import torch
 from calib.data import open_dataset
 from calib.edge_matcher import EdgeMatcherConfig
 from calib.errors import DataError
-from calib.synth.config import load_synth_config
-from calib.synth.generate import Synthesizer, write_sequence
 from export.onnx import export_onnx
 from supportnet.flow_matcher import FlowMatcher
 from supportnet.matchers import build_matcher
@@ -19,14 +17,8 @@ from train.run import run_train_flow
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    """Two 3-frame sequences of different worlds: one to train on, one held out."""
-    root = tmp_path_factory.mktemp("tiny_flow")
-    sources = []
-    for world, sequence, split in (("vineyard", "00", "train"), ("urban", "01", "val")):
-        write_sequence(Synthesizer(load_synth_config(world), 3, seed=1), root / world, sequence)
-        sources.append({"data": str(root / world), "sequence": sequence, "split": split})
-    return root, sources
+def tiny(tiny_worlds):
+    return tiny_worlds
 
 
 def test_true_flow_of_a_known_camera_shift(tiny):

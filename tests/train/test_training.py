@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -6,8 +7,6 @@ import torch
 
 from calib.calibrate import CalibrateConfig
 from calib.errors import DataError
-from calib.synth.config import load_synth_config
-from calib.synth.generate import Synthesizer, write_sequence
 from export.onnx import export_onnx
 from supportnet.calibrate import run_calibrate
 from supportnet.maps import load_maps_config, run_maps
@@ -20,15 +19,14 @@ from train.run import run_train
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    """Two 3-frame sequences of different worlds, with their offline maps: one to train on, one held out."""
-    root = tmp_path_factory.mktemp("tiny")
-    sources = []
-    for world, sequence, split in (("vineyard", "00", "train"), ("urban", "01", "val")):
-        write_sequence(Synthesizer(load_synth_config(world), 3, seed=1), root / world, sequence)
-        maps = run_maps(root / world, sequence, root / f"maps_{world}", load_maps_config())
-        sources.append({"data": str(root / world), "sequence": sequence, "maps": str(maps), "split": split})
-    return root, sources
+def tiny(tiny_worlds):
+    """The tiny worlds with their offline maps."""
+    root, sources = tiny_worlds
+    maps = [
+        run_maps(s["data"], s["sequence"], root / f"maps_{Path(s['data']).name}", load_maps_config())
+        for s in sources
+    ]
+    return root, [{**s, "maps": str(m)} for s, m in zip(sources, maps, strict=True)]
 
 
 def _config_file(tmp_path, sources, **trainer):

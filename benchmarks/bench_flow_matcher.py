@@ -1,0 +1,113 @@
+"""Stage 2 side by side: the learned flow matcher against the EdgeMatcher on held-out sequences.
+
+Every 8th frame is matched under a fixed random extrinsic error (10 cm / 2°, seeded per frame, as
+the flow matcher's validation draws); a point's endpoint error is the distance from its matched
+pixel to where the reference extrinsic projects it. Medians by class (rigid structure, foliage),
+beside the error of not matching at all, the points each matcher returns and milliseconds per
+frame. Prints a table and writes benchmarks/results/flow_matcher.json.
+
+    python benchmarks/bench_flow_matcher.py [--data build/model/vineyard:09 ...] [--model FILE]
+
+Without ``--data`` it synthesises one 40-frame sequence of each world with seed 9 (held out: the
+shipped models trained on seeds 1 to 3) in a temporary folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from results_io import save_results
+
+from calib.data import open_dataset
+from calib.edge_matcher import EdgeMatcher
+from calib.geometry import perturb
+from calib.projection import project_points, transform_points
+from calib.synth.config import load_synth_config
+from calib.synth.generate import RIGID_CLASSES, Synthesizer, write_sequence
+from supportnet.flow_matcher import SHIPPED_FLOW_MODEL, FlowMatcher
+from train.flow_module import FOLIAGE_CLASSES
+
+ERROR = (10.0, 2.0)
+
+
+def _true_uv(points: np.ndarray, T: np.ndarray, K: np.ndarray) -> np.ndarray:
+    uv, _ = project_points(
+        transform_points(torch.from_numpy(T), torch.from_numpy(points)), torch.from_numpy(K)
+    )
+    return uv.numpy()
+
+
+def _held_out(world: str, tmp: Path) -> str:
+    """A 40-frame sequence of ``world`` with seed 9 under ``tmp``, as ``root:sequence``."""
+    write_sequence(Synthesizer(load_synth_config(world), 40, seed=9), tmp / world, "09")
+    return f"{tmp / world}:09"
+
+
+def evaluate(data: str, matchers: dict, stride: int = 8) -> dict:
+    """Endpoint errors and timings of each matcher on one sequence (``root:sequence``)."""
+    root, _, sequence = data.partition(":")
+    errors = {name: {"all": [], "rigid": [], "foliage": [], "none": []} for name in matchers}
+    seconds = {name: [] for name in matchers}
+    with open_dataset(Path(root), sequence=sequence or None) as seq:
+        for i in range(0, len(seq), stride):
+            frame = seq[i]
+            T_ref = frame.calibration.T_cam_lidar
+            T_init = perturb(T_ref, *ERROR, torch.Generator().manual_seed(i))
+            for name, matcher in matchers.items():
+                start = time.perf_counter()
+                corr = matcher.match(frame, T_init)
+                seconds[name].append(time.perf_counter() - start)
+                truth = _true_uv(corr.points_lidar, T_ref, frame.K)
+                epe = np.linalg.norm(corr.uv_matched - truth, axis=1)
+                labels = np.asarray(frame.labels)[corr.index] if frame.labels is not None else None
+                errors[name]["all"].append(epe)
+                errors[name]["none"].append(np.linalg.norm(corr.uv - truth, axis=1))
+                if labels is not None:
+                    errors[name]["rigid"].append(epe[np.isin(labels, list(RIGID_CLASSES))])
+                    errors[name]["foliage"].append(epe[np.isin(labels, list(FOLIAGE_CLASSES))])
+    out = {}
+    for name in matchers:
+        e = {k: np.concatenate(v) if v else np.zeros(0) for k, v in errors[name].items()}
+        out[name] = {
+            "epe_median_px": float(np.median(e["all"])),
+            "epe_median_rigid_px": float(np.median(e["rigid"])) if len(e["rigid"]) else None,
+            "epe_median_foliage_px": float(np.median(e["foliage"])) if len(e["foliage"]) else None,
+            "no_matching_median_px": float(np.median(e["none"])),
+            "points_per_frame": len(e["all"]) / len(seconds[name]),
+            "ms_per_frame": 1000 * float(np.median(seconds[name][1:] or seconds[name])),
+        }
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", nargs="+", help="root:sequence of held-out sequences")
+    parser.add_argument("--model", type=Path, default=SHIPPED_FLOW_MODEL)
+    args = parser.parse_args()
+    matchers = {"edge": EdgeMatcher(), "flow": FlowMatcher(args.model)}
+    with tempfile.TemporaryDirectory() as tmp:
+        data = args.data or [_held_out(world, Path(tmp)) for world in ("vineyard", "urban")]
+        rows = {
+            f"{Path(d.partition(':')[0]).name}:{d.partition(':')[2]}": evaluate(d, matchers) for d in data
+        }
+    print(f"error {ERROR[0]:.0f} cm / {ERROR[1]:.0f} deg; endpoint error medians in pixels")
+    columns = ("all", 6), ("rigid", 6), ("foliage", 8), ("none", 6), ("pts/frame", 10), ("ms", 6)
+    print(f"{'sequence':26} {'matcher':8} " + " ".join(f"{name:>{width}}" for name, width in columns))
+    for data, result in rows.items():
+        for name, r in result.items():
+            fmt = lambda v: f"{v:.2f}" if v is not None else "-"  # noqa: E731
+            print(
+                f"{data:26} {name:8} {r['epe_median_px']:>6.2f} {fmt(r['epe_median_rigid_px']):>6} "
+                f"{fmt(r['epe_median_foliage_px']):>8} {r['no_matching_median_px']:>6.2f} "
+                f"{r['points_per_frame']:>10.0f} {r['ms_per_frame']:>6.0f}"
+            )
+    save_results("flow_matcher", {"error_cm_deg": ERROR, "model": str(args.model), "sequences": rows})
+
+
+if __name__ == "__main__":
+    main()
