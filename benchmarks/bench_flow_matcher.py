@@ -29,10 +29,12 @@ from calib.geometry import perturb
 from calib.projection import project_points, transform_points
 from calib.synth.config import load_synth_config
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, write_sequence
+from supportnet.fixtures import kitti_object_from_mmdet, realdata_root
 from supportnet.flow_matcher import SHIPPED_FLOW_MODEL, FlowMatcher
 from train.flow_module import FOLIAGE_CLASSES
 
 ERROR = (10.0, 2.0)
+AMZ_KITTI_RAW = "amz_kitti_raw_0928/data/0928-KITTI-dataset"
 
 
 def _true_uv(points: np.ndarray, T: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -50,7 +52,7 @@ def _held_out(world: str, tmp: Path) -> str:
 
 def evaluate(data: str, matchers: dict, stride: int = 8) -> dict:
     """Endpoint errors and timings of each matcher on one sequence (``root:sequence``)."""
-    root, _, sequence = data.partition(":")
+    root, _, sequence = data.rpartition(":") if ":" in Path(data).name else (data, "", "")
     errors = {name: {"all": [], "rigid": [], "foliage": [], "none": []} for name in matchers}
     seconds = {name: [] for name in matchers}
     with open_dataset(Path(root), sequence=sequence or None) as seq:
@@ -88,13 +90,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", nargs="+", help="root:sequence of held-out sequences")
     parser.add_argument("--model", type=Path, default=SHIPPED_FLOW_MODEL)
+    parser.add_argument(
+        "--real", action="store_true", help="also the real KITTI fixtures (../shared/realdata)"
+    )
     args = parser.parse_args()
     matchers = {"edge": EdgeMatcher(), "flow": FlowMatcher(args.model)}
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data or [_held_out(world, Path(tmp)) for world in ("vineyard", "urban")]
-        rows = {
-            f"{Path(d.partition(':')[0]).name}:{d.partition(':')[2]}": evaluate(d, matchers) for d in data
-        }
+        real = realdata_root() if args.real else None
+        if real is not None:  # no labels there: the class columns stay empty
+            data += [
+                str(real / AMZ_KITTI_RAW),
+                str(kitti_object_from_mmdet(real, Path(tmp) / "kitti_object")),
+            ]
+        rows = {Path(d).name: evaluate(d, matchers) for d in data}
     print(f"error {ERROR[0]:.0f} cm / {ERROR[1]:.0f} deg; endpoint error medians in pixels")
     columns = ("all", 6), ("rigid", 6), ("foliage", 8), ("none", 6), ("pts/frame", 10), ("ms", 6)
     print(f"{'sequence':26} {'matcher':8} " + " ".join(f"{name:>{width}}" for name, width in columns))

@@ -1,10 +1,12 @@
 import numpy as np
 import pytest
 
+from calib.edge_matcher import EdgeMatcherConfig
 from calib.errors import DataError, SupportnetError
 from calib.synth.config import load_synth_config
 from calib.synth.generate import Synthesizer, write_sequence
 from supportnet.maps import load_maps_config, run_maps
+from supportnet.matchers import build_matcher
 
 
 @pytest.fixture(scope="module")
@@ -49,6 +51,12 @@ def test_an_interrupted_run_resumes_from_its_frames(vineyard, tmp_path):
         run_maps(vineyard, "00", tmp_path / "x", config, resume=True)
 
 
-def test_flow_matcher_is_a_clear_error_until_it_exists(vineyard, tmp_path):
-    with pytest.raises(SupportnetError, match="not built yet"):
-        run_maps(vineyard, "00", tmp_path / "maps", load_maps_config(matcher="flow"))
+def test_the_shipped_flow_matcher_plugs_into_maps(vineyard, tmp_path):
+    out = run_maps(vineyard, "00", tmp_path / "maps", load_maps_config(matcher="flow"))
+    support = np.load(out / "sequence.npz")["support"]
+    assert support.shape == (188, 624) and support.max() > 0
+
+
+def test_an_unknown_matcher_is_a_clear_error(vineyard, tmp_path):
+    with pytest.raises(SupportnetError, match="unknown matcher"):
+        build_matcher("sift", EdgeMatcherConfig())

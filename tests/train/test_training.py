@@ -81,7 +81,8 @@ def test_fast_dev_run_trains_exports_predicts_and_calibrates(tiny, tmp_path):
 
 def test_crops_carry_targets_weighted_by_coverage_only_where_covered(tiny):
     _, sources = tiny
-    data = SupportDataModule(DataConfig(sources=sources, crop=(64, 96), batch_size=2, samples_per_epoch=4))
+    config = DataConfig(sources=sources, target="agreement", crop=(64, 96), batch_size=2, samples_per_epoch=4)
+    data = SupportDataModule(config)
     data.setup()
     batch = next(iter(data.train_dataloader()))
     assert batch["image"].shape == (2, 3, 64, 96) and batch["target"].shape == (2, 1, 64, 96)
