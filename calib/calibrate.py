@@ -16,6 +16,7 @@ from calib.edge_matcher import EdgeMatcherConfig
 from calib.errors import SupportnetError
 from calib.geometry import calibration_error
 from calib.matching import Matcher
+from calib.online import OnlineConfig
 from calib.projection import pixel_lookup
 from calib.refine import RefineConfig, refine_extrinsic
 from calib.sampling import support_sample, uniform_sample
@@ -53,6 +54,7 @@ class CalibrateConfig(BaseModel):
     passes: int = Field(3, ge=1)
     min_update_cm: float = Field(0.01, ge=0, description="stop early when a pass moves less than this")
     min_update_deg: float = Field(0.001, ge=0)
+    online: OnlineConfig = OnlineConfig()
 
 
 @dataclass(frozen=True)

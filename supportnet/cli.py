@@ -39,13 +39,18 @@ def synth(
         Path | None, typer.Option(help="World config (default: configs/synth/<world>.yaml).")
     ] = None,
     workers: Annotated[int, typer.Option(help="Processes rendering frames in parallel.")] = 2,
+    drift: Annotated[
+        str | None,
+        typer.Option(help="CM,DEG: the extrinsic drifts this far by the last frame (a loosening mount)."),
+    ] = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Write a synthetic sequence with ground truth: images, scans, point and pixel labels,
-    poses, the reference extrinsic (calib.txt) and meta.json."""
-    from supportnet.synth import run_synth
+    poses, the reference extrinsic (calib.txt) and meta.json (with drift: every frame's true
+    extrinsic)."""
+    from supportnet.synth import parse_drift, run_synth
 
-    run_synth(world.value, frames, seed, out, sequence, config, overwrite, workers)
+    run_synth(world.value, frames, seed, out, sequence, config, overwrite, workers, drift=parse_drift(drift))
 
 
 @app.command()
@@ -234,12 +239,26 @@ def calibrate(
     config: Annotated[
         Path | None, typer.Option(help="Calibrate config (default: configs/calibrate.yaml).")
     ] = None,
+    online: Annotated[
+        bool,
+        typer.Option(
+            "--online",
+            help="Calibrate the stream window by window (config: online): a running estimate, its "
+            "uncertainty and a drift alarm, per window in CSV/JSON and a plot.",
+        ),
+    ] = False,
     overwrite: Overwrite = False,
 ) -> None:
     """Stage 4: support-guided (or uniform) sampling and weighted SE(3) refinement, in passes."""
     from supportnet.calibrate import load_calibrate_config, run_calibrate
 
-    run_calibrate(data, sequence, support, init, out, load_calibrate_config(config), runs, seed, overwrite)
+    cfg = load_calibrate_config(config)
+    if online:
+        from supportnet.online import run_online
+
+        run_online(data, sequence, support, init, out, cfg, seed, overwrite)
+        return
+    run_calibrate(data, sequence, support, init, out, cfg, runs, seed, overwrite)
 
 
 @app.command()

@@ -15,7 +15,20 @@ from calib.synth.config import load_synth_config
 from calib.synth.generate import Synthesizer, write_sequence
 from supportnet.outputs import progress_bar, resolved_config
 
-__all__ = ["run_synth"]
+__all__ = ["parse_drift", "run_synth"]
+
+
+def parse_drift(text: str | None) -> tuple[float, float]:
+    """``CM,DEG`` → ``(cm, deg)``; ``None`` → no drift."""
+    if text is None:
+        return (0.0, 0.0)
+    try:
+        cm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise DataError("--drift", f"{text!r} is not CM,DEG (e.g. 5,1)") from None
+    if cm < 0 or deg < 0:
+        raise DataError("--drift", f"sizes must be non-negative, got {text!r}")
+    return cm, deg
 
 
 def run_synth(
@@ -28,6 +41,7 @@ def run_synth(
     overwrite: bool = False,
     workers: int = 2,
     console: Console | None = None,
+    drift: tuple[float, float] = (0.0, 0.0),
 ) -> Path:
     """Generate ``out/sequences/<sequence>`` (and ``out/poses/<sequence>.txt``) atomically.
 
@@ -47,7 +61,7 @@ def run_synth(
         raise DataError(seq_dir, "already exists; pass --overwrite to replace it")
     cfg = load_synth_config(world, config)
     start = time.perf_counter()
-    synth = Synthesizer(cfg, frames, seed)
+    synth = Synthesizer(cfg, frames, seed, drift)
     out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".synth-{sequence}.", dir=out))
     try:

@@ -14,7 +14,7 @@ import torch
 
 from calib.data.kitti_odometry import KittiOdometryWriter
 from calib.data.types import Calibration, Frame
-from calib.geometry import perturb
+from calib.geometry import perturb, random_perturbation, se3_exp, se3_log
 from calib.synth.config import ExtrinsicConfig, SynthConfig
 from calib.synth.raycast import Raycaster
 from calib.synth.render import Camera, Lidar
@@ -63,12 +63,17 @@ class Synthesizer:
         seed: every random choice follows from it; the same seed gives the same bytes.
     """
 
-    def __init__(self, config: SynthConfig, frames: int, seed: int):
+    def __init__(self, config: SynthConfig, frames: int, seed: int, drift: tuple[float, float] = (0.0, 0.0)):
         if frames < 1:
             raise ValueError("need at least one frame")
         self.config, self.n_frames, self.seed = config, frames, seed
         rng = np.random.default_rng(seed)
         self.T_cam_lidar = reference_extrinsic(config.extrinsic, rng)
+        # the mount drifts linearly in se(3) from the reference to ``drift`` (cm, °) at the last frame,
+        # along a direction of its own seed (the world and the reference stay those of ``seed``)
+        self.drift = tuple(float(v) for v in drift)
+        delta = random_perturbation(*self.drift, generator=torch.Generator().manual_seed(seed + 7919))
+        self._drift_twist = se3_log(delta)
         travel = frames / config.timing.rate_hz * config.drive.speed_mps
         build = build_vineyard if config.world == "vineyard" else build_urban
         self.world: World = build(config, travel, rng)
@@ -89,6 +94,11 @@ class Synthesizer:
             self._static = Raycaster([self.world.static])
         return self._static
 
+    def extrinsic(self, i: int) -> np.ndarray:
+        """The true ``T_cam_lidar`` at frame ``i``: the reference, moved by the drift so far."""
+        fraction = i / max(self.n_frames - 1, 1)
+        return self.T_cam_lidar @ se3_exp(fraction * self._drift_twist).numpy()
+
     def lidar_poses(self) -> np.ndarray:
         """``(frames, 4, 4)`` ground-truth ``T_world_lidar`` at each scan's stamp."""
         return self.world.drive.lidar_poses(np.arange(self.n_frames) / self.config.timing.rate_hz)
@@ -101,7 +111,7 @@ class Synthesizer:
         t_lidar = i / timing.rate_hz
         t_cam = t_lidar + timing.camera_offset_s
         drive = self.world.drive
-        T_world_cam = drive.lidar_poses(np.array([t_cam]))[0] @ np.linalg.inv(self.T_cam_lidar)
+        T_world_cam = drive.lidar_poses(np.array([t_cam]))[0] @ np.linalg.inv(self.extrinsic(i))
         image, image_labels = self.camera.render(
             self.static.plus(self.world.dynamic(t_cam, wind)), T_world_cam, rng
         )
@@ -146,6 +156,12 @@ class Synthesizer:
             "seed": self.seed,
             "frames": self.n_frames,
             "T_cam_lidar": self.T_cam_lidar.tolist(),
+            "drift_cm_deg": list(self.drift),
+            **(
+                {"true_T_cam_lidar": [self.extrinsic(i)[:3].ravel().tolist() for i in range(self.n_frames)]}
+                if any(self.drift)
+                else {}
+            ),
             "K": c.camera.K.tolist(),
             "image_size": [c.camera.height, c.camera.width],
             "camera_offset_s": c.timing.camera_offset_s,
@@ -159,6 +175,8 @@ class Synthesizer:
                 "poses": "poses/NN.txt holds camera-0 poses at the LiDAR stamps (KITTI convention); "
                 "T_world_lidar = inv(Tr) @ pose @ Tr",
                 "point_times": "seconds from the scan stamp, 0 where the beam points forward",
+                "true_T_cam_lidar": "with drift: each frame's true extrinsic (12 numbers, rows of "
+                "[R | t]); calib.txt holds the reference, the drift's start",
             },
         }
 
