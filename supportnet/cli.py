@@ -43,14 +43,28 @@ def synth(
         str | None,
         typer.Option(help="CM,DEG: the extrinsic drifts this far by the last frame (a loosening mount)."),
     ] = None,
+    fmt: Annotated[
+        str, typer.Option("--format", help="kitti (KITTI odometry layout) or bag (a ROS 2 bag folder).")
+    ] = "kitti",
     overwrite: Overwrite = False,
 ) -> None:
     """Write a synthetic sequence with ground truth: images, scans, point and pixel labels,
     poses, the reference extrinsic (calib.txt) and meta.json (with drift: every frame's true
-    extrinsic)."""
+    extrinsic); or the same frames as a ROS 2 bag."""
     from supportnet.synth import parse_drift, run_synth
 
-    run_synth(world.value, frames, seed, out, sequence, config, overwrite, workers, drift=parse_drift(drift))
+    run_synth(
+        world.value,
+        frames,
+        seed,
+        out,
+        sequence,
+        config,
+        overwrite,
+        workers,
+        drift=parse_drift(drift),
+        fmt=fmt,
+    )
 
 
 @app.command()

@@ -33,10 +33,11 @@ PARAMETERS = ("tx cm", "ty cm", "tz cm", "rx °", "ry °", "rz °")
 
 
 def true_extrinsics(data: Path, sequence: str | None) -> np.ndarray | None:
-    """``(F, 4, 4)`` per-frame true extrinsics of a synthetic sequence written with ``--drift``
-    (``meta.json``'s ``true_T_cam_lidar``), or ``None``."""
-    meta = Path(data) / "sequences" / (sequence or "") / "meta.json"
-    if not meta.is_file():
+    """``(F, 4, 4)`` per-frame true extrinsics of a synthetic sequence (or bag) written with
+    ``--drift`` (``meta.json``'s ``true_T_cam_lidar``), or ``None``."""
+    candidates = [Path(data) / "sequences" / (sequence or "") / "meta.json", Path(data) / "meta.json"]
+    meta = next((m for m in candidates if m.is_file()), None)
+    if meta is None:
         return None
     rows = json.loads(meta.read_text()).get("true_T_cam_lidar")
     if rows is None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import tempfile
@@ -10,6 +11,7 @@ from pathlib import Path
 
 from rich.console import Console
 
+from calib.data.rosbag import write_bag
 from calib.errors import DataError
 from calib.synth.config import load_synth_config
 from calib.synth.generate import Synthesizer, write_sequence
@@ -42,21 +44,28 @@ def run_synth(
     workers: int = 2,
     console: Console | None = None,
     drift: tuple[float, float] = (0.0, 0.0),
+    fmt: str = "kitti",
 ) -> Path:
-    """Generate ``out/sequences/<sequence>`` (and ``out/poses/<sequence>.txt``) atomically.
+    """Generate ``out/sequences/<sequence>`` (and ``out/poses/<sequence>.txt``) atomically, or
+    with ``fmt="bag"`` the same frames as a ROS 2 bag folder ``out/<sequence>_bag`` (image,
+    camera_info, PointCloud2, /tf_static; ``meta.json`` and ``config.yaml`` inside).
 
     Other sequences already in ``out`` are kept, so several seeds can share one dataset root.
 
     Returns:
-        The sequence folder.
+        The sequence folder (or the bag folder).
     """
     console = console or Console(stderr=True)
     if frames < 1:
         raise DataError("--frames", f"must be at least 1, got {frames}")
     if not re.fullmatch(r"[A-Za-z0-9_-]+", sequence):
         raise DataError("--sequence", f"{sequence!r} is not a folder name (letters, digits, - and _)")
+    if fmt not in ("kitti", "bag"):
+        raise DataError("--format", f"{fmt!r} is not kitti or bag")
     out = Path(out)
     seq_dir, pose_file = out / "sequences" / sequence, out / "poses" / f"{sequence}.txt"
+    if fmt == "bag":
+        seq_dir = out / f"{sequence}_bag"
     if seq_dir.exists() and not overwrite:
         raise DataError(seq_dir, "already exists; pass --overwrite to replace it")
     cfg = load_synth_config(world, config)
@@ -67,14 +76,23 @@ def run_synth(
     try:
         with progress_bar(f"{world} seq {sequence}", console) as progress:
             task = progress.add_task("render", total=frames)
-            written = write_sequence(synth, tmp, sequence, workers, lambda n: progress.advance(task, n))
+            if fmt == "bag":
+                rendered = []
+                for item in synth.frames(workers):
+                    rendered.append(item.frame)
+                    progress.advance(task)
+                written = write_bag(tmp / seq_dir.name, rendered, ros_version=2)
+                (written / "meta.json").write_text(json.dumps(synth.meta(), indent=2) + "\n")
+            else:
+                written = write_sequence(synth, tmp, sequence, workers, lambda n: progress.advance(task, n))
         (written / "config.yaml").write_text(resolved_config(cfg))
         if seq_dir.exists():
             shutil.rmtree(seq_dir)
         seq_dir.parent.mkdir(parents=True, exist_ok=True)
-        pose_file.parent.mkdir(parents=True, exist_ok=True)
         written.rename(seq_dir)
-        (tmp / "poses" / f"{sequence}.txt").replace(pose_file)
+        if fmt == "kitti":
+            pose_file.parent.mkdir(parents=True, exist_ok=True)
+            (tmp / "poses" / f"{sequence}.txt").replace(pose_file)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     seconds = time.perf_counter() - start

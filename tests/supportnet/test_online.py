@@ -66,3 +66,20 @@ def test_online_calibration_tracks_an_injected_drift(tmp_path):
     assert (tmp_path / "online" / "parameters.png").is_file()
     with pytest.raises(DataError, match="one support"):
         run_online(tmp_path, "00", "uniform,onnx", "perturb:0,0", tmp_path / "o2", config)
+
+
+def test_synth_writes_the_same_frames_as_a_ros_bag(tmp_path):
+    from calib.data import open_dataset
+    from supportnet.synth import run_synth
+
+    bag = run_synth("urban", 3, 2, tmp_path, "00", drift=(2.0, 1.0), fmt="bag", workers=1)
+    kitti = run_synth("urban", 3, 2, tmp_path / "kitti", "00", drift=(2.0, 1.0), workers=1)
+    assert bag == tmp_path / "00_bag" and (bag / "metadata.yaml").is_file()
+    with open_dataset(bag) as from_bag, open_dataset(kitti.parent.parent, sequence="00") as from_kitti:
+        assert len(from_bag) == 3
+        assert np.allclose(from_bag.calibration.T_cam_lidar, from_kitti.calibration.T_cam_lidar, atol=1e-6)
+        assert np.array_equal(from_bag[2].image, from_kitti[2].image)
+        assert np.allclose(from_bag[2].points[:, :3], from_kitti[2].points[:, :3], atol=1e-4)
+    assert np.allclose(true_extrinsics(bag, None), true_extrinsics(kitti.parent.parent, "00"))
+    with pytest.raises(DataError, match="is not kitti or bag"):
+        run_synth("urban", 3, 2, tmp_path / "x", "00", fmt="mcap")
