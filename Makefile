@@ -29,6 +29,8 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_predictor.py
 	$(PY) benchmarks/bench_hand_eye.py
 	$(PY) benchmarks/bench_flow_matcher.py
+	$(PY) benchmarks/bench_accuracy.py
+	$(PY) benchmarks/report.py
 
 lint: $(STAMP)
 	.venv/bin/ruff check calib supportnet train export tests benchmarks

@@ -1,0 +1,100 @@
+"""Accuracy: Stage 4 with uniform sampling vs SGIS on the offline map vs SGIS on the predicted map,
+both worlds, paired runs from a 10 cm / 2° error; and Stage 1 from motion on 300-frame sequences.
+
+Everything is synthesised in a temporary folder with fixed seeds: Stage 4 on the held-out seed 9
+(80 frames, the shipped predictor never saw it), Stage 1 on seed 21. Prints a table and writes
+benchmarks/results/accuracy.json.
+
+    python benchmarks/bench_accuracy.py [--runs 10] [--stage1-frames 300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+from results_io import save_results
+from rich.console import Console
+
+from calib.errors import NumericalError
+from supportnet.calibrate import load_calibrate_config, run_calibrate
+from supportnet.init_calib import load_stage1_config, run_init_calib
+from supportnet.maps import load_maps_config, run_maps
+from supportnet.synth import run_synth
+
+WORLDS = ("vineyard", "urban")
+
+
+def stage4(world: str, tmp: Path, runs: int, console: Console) -> dict:
+    data = tmp / world
+    run_synth(world, 80, 9, data, "09", console=console)
+    maps = run_maps(data, "09", tmp / f"maps_{world}", load_maps_config(), console=console)
+    result = run_calibrate(
+        data, "09", f"uniform,offline:{maps},onnx", "perturb:10,2", tmp / f"cal_{world}",
+        load_calibrate_config(), runs, console=console,
+    )  # fmt: skip
+    names = {"uniform": "uniform", "onnx": "sgis_predicted"}
+    return {
+        names.get(name, "sgis_offline"): {**r["summary"], "vs_uniform": result["paired_vs_uniform"].get(name)}
+        for name, r in result["results"].items()
+    }
+
+
+def stage1(world: str, tmp: Path, frames: int, console: Console) -> dict:
+    data = tmp / f"{world}_s1"
+    run_synth(world, frames, 21, data, "01", console=console)
+    start = time.perf_counter()
+    try:
+        r = run_init_calib(data, "01", tmp / f"s1_{world}", load_stage1_config(), console=console)
+    except NumericalError as exc:
+        return {"refused": str(exc)}
+    return {
+        "rotation_deg": r["error"]["rotation_deg"],
+        "translation_cm": r["error"]["translation_cm"],
+        "translation_source": r["translation_source"],
+        "hand_eye_translation_cm": r["hand_eye_error"]["translation_cm"],
+        "seconds": time.perf_counter() - start,
+        "weak": [w["text"] for w in r["weak"]],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=10)
+    parser.add_argument("--stage1-frames", type=int, default=300)
+    args = parser.parse_args()
+    console = Console(stderr=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = {
+            "stage4": {w: stage4(w, Path(tmp), args.runs, console) for w in WORLDS},
+            "stage1": {w: stage1(w, Path(tmp), args.stage1_frames, console) for w in WORLDS},
+        }
+    rows["runs"], rows["stage1_frames"] = args.runs, args.stage1_frames
+    print(f"Stage 4 from 10 cm / 2°, {args.runs} paired runs (mean / median)")
+    head = ("t cm mean", 9), ("median", 7), ("r ° mean", 9), ("median", 7), ("wins t/r", 9)
+    print(f"{'world':9} {'support':16} " + " ".join(f"{n:>{w}}" for n, w in head))
+    for world, supports in rows["stage4"].items():
+        for name, s in supports.items():
+            t, r, wins = s["translation_cm"], s["rotation_deg"], s["vs_uniform"]
+            won = f"{wins['translation_wins']}/{wins['rotation_wins']}" if wins else ""
+            print(
+                f"{world:9} {name:16} {t['mean']:>9.2f} {t['median']:>7.2f} {r['mean']:>9.3f} "
+                f"{r['median']:>7.3f} {won:>9}"
+            )
+    print(f"Stage 1 on {args.stage1_frames} frames")
+    for world, s in rows["stage1"].items():
+        if "refused" in s:
+            print(f"{world:9} refused: {s['refused']}")
+        else:
+            print(
+                f"{world:9} rotation {s['rotation_deg']:.2f}°, translation {s['translation_cm']:.1f} cm "
+                f"({s['translation_source']}; hand–eye's own {s['hand_eye_translation_cm']:.0f} cm), "
+                f"{s['seconds']:.0f} s"
+            )
+    save_results("accuracy", rows)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,160 @@
+"""The benchmark tables as Markdown: ``benchmarks/results/RESULTS.md`` and the README's results
+section (between its ``results`` markers), from the JSON the benchmarks wrote, with the date and
+the machine. ``make bench`` runs it last; a benchmark that has not run is left out with a note.
+
+    python benchmarks/report.py [--readme README.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import re
+from pathlib import Path
+
+RESULTS = Path(__file__).parent / "results"
+START, END = "<!-- results:start -->", "<!-- results:end -->"
+
+
+def _load(name: str) -> dict | list | None:
+    path = RESULTS / f"{name}.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + [
+        "| " + " | ".join(r) + " |" for r in rows
+    ]
+
+
+def speed() -> list[str]:
+    rows = []
+    if synth := _load("synth"):
+        for world, r in synth["speed"].items():
+            rows.append([f"synthesis, {world}", f"{r['workers_2']:.1f} frames/s (2 workers)"])
+        for world, r in synth["odometry"].items():
+            rows.append([f"KISS-ICP, {world}", f"{1 / r['seconds_per_scan']:.1f} frames/s"])
+    if matcher := _load("matcher"):
+        for world, r in matcher.items():
+            rows.append([f"EdgeMatcher, {world}", f"{r['matcher_ms_median']:.0f} ms/frame"])
+            rows.append([f"map accumulation, {world}", f"{r['maps_frames_per_s']:.0f} frames/s"])
+    if predictor := _load("predictor"):
+        ort, eager = predictor["backends"]["onnxruntime"], predictor["backends"]["torch eager"]
+        rows.append(
+            [
+                "support predictor, 624x188",
+                f"onnxruntime {ort['ms_median']:.1f} ms, torch eager {eager['ms_median']:.1f} ms "
+                f"(ratio {eager['ms_median'] / ort['ms_median']:.2f}, same run)",
+            ]
+        )
+    if flow := _load("flow_matcher"):
+        for name, r in flow["sequences"].items():
+            rows.append([f"flow matcher, {name}", f"{r['flow']['ms_per_frame']:.0f} ms/frame (onnxruntime)"])
+    if refine := _load("refine"):
+        rows.append(["Stage 4 refinement (one solve)", f"{refine['sgis']['seconds_median']:.2f} s"])
+    return ["### Speed", ""] + (
+        _table(["what", "figure"], rows) if rows else ["(no speed benchmark has run)"]
+    )
+
+
+def accuracy() -> list[str]:
+    lines = ["### Accuracy", ""]
+    result = _load("accuracy")
+    if result is None:
+        return lines + ["(benchmarks/bench_accuracy.py has not run)"]
+    rows = []
+    for world, supports in result["stage4"].items():
+        for name, s in supports.items():
+            t, r, wins = s["translation_cm"], s["rotation_deg"], s["vs_uniform"]
+            won = (
+                f"{wins['translation_wins']}/{wins['runs']}, {wins['rotation_wins']}/{wins['runs']}"
+                if wins
+                else ""
+            )
+            rows.append(
+                [
+                    world,
+                    name.replace("_", " "),
+                    f"{t['mean']:.2f} / {t['median']:.2f}",
+                    f"{r['mean']:.3f} / {r['median']:.3f}",
+                    won,
+                ]
+            )
+    lines += [
+        f"Stage 4 from a 10 cm / 2° error, {result['runs']} paired runs (held-out seed 9, 80 frames):",
+        "",
+    ]
+    lines += _table(
+        [
+            "world",
+            "support",
+            "translation cm mean / median",
+            "rotation ° mean / median",
+            "beats uniform t, r",
+        ],
+        rows,
+    )
+    rows = []
+    for world, s in result["stage1"].items():
+        if "refused" in s:
+            rows.append([world, "refused", "", "", s["refused"]])
+        else:
+            rows.append(
+                [
+                    world,
+                    f"{s['rotation_deg']:.2f}",
+                    f"{s['translation_cm']:.1f} ({s['translation_source']})",
+                    f"{s['hand_eye_translation_cm']:.0f}",
+                    f"{s['seconds']:.0f} s",
+                ]
+            )
+    lines += ["", f"Stage 1 from motion, {result['stage1_frames']} frames (seed 21):", ""]
+    lines += _table(["world", "rotation °", "translation cm", "hand–eye's own translation cm", "time"], rows)
+    return lines
+
+
+def hand_eye() -> list[str]:
+    result = _load("hand_eye")
+    if result is None:
+        return []
+    methods = [k for k in result[0] if k not in ("noise_deg", "noise_cm")]
+    rows = [
+        [f"{r['noise_deg']}° / {r['noise_cm']} cm"]
+        + [f"{r[m]['translation_cm']:.2f} / {r[m]['rotation_deg']:.3f}" for m in methods]
+        for r in result
+    ]
+    return ["", "Hand–eye against OpenCV (translation cm / rotation °, mean of 20 draws):", ""] + _table(
+        ["noise", *methods], rows
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--readme", type=Path, default=Path("README.md"))
+    args = parser.parse_args()
+    machine = f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
+    machine += f", python {platform.python_version()}"
+    body = [
+        f"Generated by `make bench` on {datetime.date.today().isoformat()} ({machine}).",
+        "",
+        *speed(),
+        "",
+        *accuracy(),
+        *hand_eye(),
+    ]
+    text = "\n".join(body) + "\n"
+    (RESULTS / "RESULTS.md").write_text("# Benchmark results\n\n" + text)
+    readme = args.readme.read_text()
+    if START in readme and END in readme:
+        readme = re.sub(
+            re.escape(START) + ".*?" + re.escape(END), lambda _: f"{START}\n{text}{END}", readme, flags=re.S
+        )
+        args.readme.write_text(readme)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
