@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from calib.data.types import Frame
+from calib.errors import DataError
 from calib.matching import Correspondences, working_view
 from calib.projection import ProjectedScan, Visibility, project_scan
 from supportnet.flow_model import LIDAR_CHANNELS, lidar_input
@@ -55,7 +56,11 @@ class FlowMatcher:
         self.near_m = float(self.contract.extra["near_m"])
         self.focal_px = float(self.contract.extra["working_focal_px"])
         if tuple(self.contract.extra["lidar_channels"]) != LIDAR_CHANNELS:
-            raise ValueError(f"{self.path}: LiDAR channels {self.contract.extra['lidar_channels']}")
+            raise DataError(
+                self.path,
+                f"expects LiDAR channels {self.contract.extra['lidar_channels']}; this version draws "
+                f"{list(LIDAR_CHANNELS)}",
+            )
 
     def dense_flow(self, image: np.ndarray, lidar: np.ndarray) -> np.ndarray:
         """``(H, W, 3)`` uint8 RGB and ``(3, H, W)`` LiDAR image → ``(2, H, W)`` flow in pixels."""
