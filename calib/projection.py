@@ -163,19 +163,19 @@ def render_image(
         uv: ``(N, 2)`` pixels of points already known visible (see :func:`zbuffer_visibility`).
         depth: ``(N,)`` depths, used to pick the nearest point per pixel.
         image_size: ``(H, W)``.
-        values: ``(N,)`` what to draw (e.g. intensity); the depth itself when ``None``.
+        values: ``(N,)`` or ``(N, C)`` what to draw (e.g. intensity); the depth itself when ``None``.
 
     Returns:
-        ``(H, W)`` image, zero where no point lands.
+        ``(H, W)`` image (``(H, W, C)`` for ``(N, C)`` values), zero where no point lands.
     """
     H, W = image_size
     values = depth if values is None else values
     flat, inside = _pixel_index(uv, image_size)
     zbuf = _min_depth_image(flat, depth, inside, image_size)
     winner = inside & (depth == zbuf[flat])
-    image = torch.zeros(H * W, dtype=values.dtype, device=values.device)
+    image = torch.zeros(H * W, *values.shape[1:], dtype=values.dtype, device=values.device)
     image[flat[winner]] = values[winner]
-    return image.view(H, W)
+    return image.view(H, W, *values.shape[1:])
 
 
 @dataclass(frozen=True)

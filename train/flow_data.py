@@ -92,11 +92,13 @@ def flow_sample(frames: ScanFrames, i: int, T_init: np.ndarray, near_m: float) -
     points = torch.from_numpy(frames.points[i][scan.index, :3].astype(np.float64))
     uv_true, _ = project_points(transform_points(torch.from_numpy(frames.T[i]), points), torch.from_numpy(K))
     uv, depth = torch.from_numpy(scan.uv), torch.from_numpy(scan.depth)
-    values = torch.cat([uv_true - uv, torch.from_numpy(frames.labels[i][scan.index]).double()[:, None]], 1)
-    drawn = torch.stack([render_image(uv, depth, size, values[:, k]) for k in range(3)]).float()
     H, W = size
     inside = ((uv_true >= -0.5) & (uv_true <= torch.tensor([W - 0.5, H - 0.5], dtype=uv_true.dtype))).all(1)
-    valid = render_image(uv, depth, size, inside.double()).float() * lidar[0].float()
+    labels = torch.from_numpy(frames.labels[i][scan.index]).double()
+    # flow x, flow y, class and "true position inside", of the nearest point per pixel (one z-buffer)
+    values = torch.cat([uv_true - uv, labels[:, None], inside.double()[:, None]], 1)
+    drawn = render_image(uv, depth, size, values).permute(2, 0, 1).float()
+    valid = drawn[3] * lidar[0].float()
     label = torch.where(lidar[0] > 0, drawn[2], torch.full_like(drawn[2], -1.0))
     return {
         "image": torch.from_numpy(image).permute(2, 0, 1).float() / 255.0,

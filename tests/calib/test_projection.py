@@ -100,6 +100,9 @@ def test_render_image_keeps_nearest_value_per_pixel():
     assert (img != 0).sum() == 2
     proj_depth = render_image(uv, depth, (3, 4))
     assert proj_depth[1, 2].item() == pytest.approx(3.0)
+    channels = render_image(uv, depth, (3, 4), torch.stack([values, 10 * values], 1))
+    assert channels.shape == (3, 4, 2)  # several values of the same nearest point, one z-buffer
+    assert torch.allclose(channels[..., 0], img) and torch.allclose(channels[..., 1], 10 * img)
 
 
 def test_projected_scan_images(frames):
