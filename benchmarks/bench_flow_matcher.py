@@ -4,9 +4,13 @@ Every 8th frame is matched under a fixed random extrinsic error (10 cm / 2°, se
 the flow matcher's validation draws); a point's endpoint error is the distance from its matched
 pixel to where the reference extrinsic projects it. Medians by class (rigid structure, foliage),
 beside the error of not matching at all, the points each matcher returns and milliseconds per
-frame. Prints a table and writes benchmarks/results/flow_matcher.json.
+frame. Then the final calibration error of Stage 4 with either matcher, with uniform sampling and
+with SGIS on the predicted support map: ``--runs`` paired runs from 10 cm / 2° on an 80-frame
+held-out sequence of each world (the same initial draws for every matcher and support). Prints
+tables and writes benchmarks/results/flow_matcher.json.
 
     python benchmarks/bench_flow_matcher.py [--data build/model/vineyard:09 ...] [--model FILE]
+        [--real] [--runs 10]
 
 Without ``--data`` it synthesises one 40-frame sequence of each world with seed 9 (held out: the
 shipped models trained on seeds 1 to 3) in a temporary folder.
@@ -22,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from results_io import save_results
+from rich.console import Console
 
 from calib.data import open_dataset
 from calib.edge_matcher import EdgeMatcher
@@ -29,6 +34,7 @@ from calib.geometry import perturb
 from calib.projection import project_points, transform_points
 from calib.synth.config import load_synth_config
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, write_sequence
+from supportnet.calibrate import load_calibrate_config, paired_wins, run_calibrate
 from supportnet.fixtures import kitti_object_from_mmdet, realdata_root
 from supportnet.flow_matcher import SHIPPED_FLOW_MODEL, FlowMatcher
 from train.flow_module import FOLIAGE_CLASSES
@@ -86,6 +92,44 @@ def evaluate(data: str, matchers: dict, stride: int = 8) -> dict:
     return out
 
 
+def calibration(world: str, tmp: Path, model: Path, runs: int) -> dict:
+    """Stage 4's final errors with each matcher and support, and flow's paired wins over edge."""
+    data = tmp / f"{world}_calibrate"
+    write_sequence(Synthesizer(load_synth_config(world), 80, seed=9), data, "09")
+    runs_of, out = {}, {}
+    for matcher in ("edge", "flow"):
+        config = load_calibrate_config().model_copy(update={"matcher": matcher, "flow_model": model})
+        result = run_calibrate(
+            data, "09", "uniform,onnx", "perturb:10,2", tmp / f"out_{world}_{matcher}", config, runs,
+            console=Console(stderr=True, quiet=True),
+        )  # fmt: skip
+        for support, r in result["results"].items():
+            runs_of[matcher, support] = r["runs"]
+            out[f"{matcher}/{support}"] = r["summary"]
+    for support in ("uniform", "onnx"):
+        out[f"flow_vs_edge/{support}"] = paired_wins(runs_of["flow", support], runs_of["edge", support])
+    return out
+
+
+def _print_calibration(rows: dict) -> None:
+    print("\nStage 4 from 10 cm / 2 deg, paired runs (onnx = SGIS on the predicted support map)")
+    print(
+        f"{'world':10} {'matcher/support':16} {'t mean':>7} {'t med':>7} {'R mean':>7} {'R med':>7} "
+        f"{'flow won t/R':>13}"
+    )
+    for world, result in rows.items():
+        for key, s in result.items():
+            if key.startswith("flow_vs_edge"):
+                continue
+            t, r = s["translation_cm"], s["rotation_deg"]
+            wins = result.get(f"flow_vs_edge/{key.split('/')[1]}") if key.startswith("flow") else None
+            won = f"{wins['translation_wins']}/{wins['rotation_wins']} of {wins['runs']}" if wins else ""
+            print(
+                f"{world:10} {key:16} {t['mean']:>7.2f} {t['median']:>7.2f} {r['mean']:>7.3f} "
+                f"{r['median']:>7.3f} {won:>13}"
+            )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", nargs="+", help="root:sequence of held-out sequences")
@@ -93,6 +137,7 @@ def main() -> None:
     parser.add_argument(
         "--real", action="store_true", help="also the real KITTI fixtures (../shared/realdata)"
     )
+    parser.add_argument("--runs", type=int, default=10, help="paired calibration runs (0: none)")
     args = parser.parse_args()
     matchers = {"edge": EdgeMatcher(), "flow": FlowMatcher(args.model)}
     with tempfile.TemporaryDirectory() as tmp:
@@ -104,6 +149,11 @@ def main() -> None:
                 str(kitti_object_from_mmdet(real, Path(tmp) / "kitti_object")),
             ]
         rows = {Path(d).name: evaluate(d, matchers) for d in data}
+        calibrated = (
+            {world: calibration(world, Path(tmp), args.model, args.runs) for world in ("vineyard", "urban")}
+            if args.runs
+            else {}
+        )
     print(f"error {ERROR[0]:.0f} cm / {ERROR[1]:.0f} deg; endpoint error medians in pixels")
     columns = ("all", 6), ("rigid", 6), ("foliage", 8), ("none", 6), ("pts/frame", 10), ("ms", 6)
     print(f"{'sequence':26} {'matcher':8} " + " ".join(f"{name:>{width}}" for name, width in columns))
@@ -115,7 +165,12 @@ def main() -> None:
                 f"{fmt(r['epe_median_foliage_px']):>8} {r['no_matching_median_px']:>6.2f} "
                 f"{r['points_per_frame']:>10.0f} {r['ms_per_frame']:>6.0f}"
             )
-    save_results("flow_matcher", {"error_cm_deg": ERROR, "model": str(args.model), "sequences": rows})
+    if calibrated:
+        _print_calibration(calibrated)
+    save_results(
+        "flow_matcher",
+        {"error_cm_deg": ERROR, "model": str(args.model), "sequences": rows, "calibration": calibrated},
+    )
 
 
 if __name__ == "__main__":

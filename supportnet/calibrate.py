@@ -132,7 +132,7 @@ def _summary(runs: list[dict]) -> dict:
     return out
 
 
-def _wins(runs: list[dict], baseline: list[dict]) -> dict:
+def paired_wins(runs: list[dict], baseline: list[dict]) -> dict:
     """In how many paired runs ``runs`` ended with the smaller error than ``baseline``."""
     return {
         "runs": len(runs),
@@ -262,7 +262,7 @@ def run_calibrate(
     paired = {}
     if "uniform" in results and T_ref is not None:
         paired = {
-            name: _wins(r["runs"], results["uniform"]["runs"])
+            name: paired_wins(r["runs"], results["uniform"]["runs"])
             for name, r in results.items()
             if name != "uniform"
         }

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from calib.data.types import Frame
+from calib.edge_matcher import lidar_edges
 from calib.errors import DataError
 from calib.matching import Correspondences, working_view
 from calib.projection import ProjectedScan, Visibility, project_scan
@@ -29,12 +30,15 @@ VISIBILITY = Visibility(window=3)
 """The occlusion test of the projected scan, in training and at run time alike."""
 
 
-def lidar_image(scan: ProjectedScan, near_m: float) -> np.ndarray:
-    """The network's LiDAR input of a projected scan: ``(3, H, W)`` float32 (see
-    :func:`supportnet.flow_model.lidar_input`)."""
+def lidar_image(
+    scan: ProjectedScan, points_lidar: np.ndarray, T_cam_lidar: np.ndarray, K: np.ndarray, near_m: float
+) -> np.ndarray:
+    """The network's LiDAR input of a scan projected under ``T_cam_lidar`` with ``K``:
+    ``(5, H, W)`` float32 (see :func:`supportnet.flow_model.lidar_input`)."""
     depth = torch.from_numpy(scan.depth_image())
     intensity = torch.from_numpy(np.clip(scan.intensity_image(), 0.0, 1.0))
-    return lidar_input(depth, intensity, near_m).numpy()
+    edges, _ = lidar_edges(scan, points_lidar, T_cam_lidar, K)
+    return lidar_input(depth, intensity, torch.from_numpy(edges), near_m).numpy()
 
 
 class FlowMatcher:
@@ -63,7 +67,7 @@ class FlowMatcher:
             )
 
     def dense_flow(self, image: np.ndarray, lidar: np.ndarray) -> np.ndarray:
-        """``(H, W, 3)`` uint8 RGB and ``(3, H, W)`` LiDAR image → ``(2, H, W)`` flow in pixels."""
+        """``(H, W, 3)`` uint8 RGB and ``(5, H, W)`` LiDAR image → ``(2, H, W)`` flow in pixels."""
         feeds = {"image": self.contract.preprocess(image), "lidar": lidar[None].astype(np.float32)}
         (flow,) = self.session.run(None, feeds)
         return flow[0]
@@ -72,7 +76,7 @@ class FlowMatcher:
         """Correspondences of every visible point of ``frame`` under ``T_cam_lidar (4, 4)``."""
         view = working_view(frame, self.focal_px)
         scan = project_scan(frame.points, T_cam_lidar, view.K, view.image.shape[:2], VISIBILITY)
-        flow = self.dense_flow(view.image, lidar_image(scan, self.near_m))
+        flow = self.dense_flow(view.image, lidar_image(scan, frame.points, T_cam_lidar, view.K, self.near_m))
         r, c = np.rint(scan.uv[:, 1]).astype(int), np.rint(scan.uv[:, 0]).astype(int)
         uv = view.to_frame(scan.uv)
         return Correspondences(

@@ -81,14 +81,14 @@ def flow_sample(frames: ScanFrames, i: int, T_init: np.ndarray, near_m: float) -
     """One whole-frame sample: the scan projected under ``T_init``, and its true flow.
 
     Returns:
-        ``image (3, H, W)`` float in [0, 1]; ``lidar (3, H, W)``; ``flow (2, H, W)`` pixels,
+        ``image (3, H, W)`` float in [0, 1]; ``lidar (5, H, W)``; ``flow (2, H, W)`` pixels,
         ``reference − projected``; ``valid (1, H, W)`` where a point landed and its true position
         is inside the image; ``label (1, H, W)`` its class (``-1``: none).
     """
     image, K = frames.images[i], frames.K[i]
     size = image.shape[:2]
     scan = project_scan(frames.points[i], T_init, K, size, VISIBILITY)
-    lidar = torch.from_numpy(lidar_image(scan, near_m))
+    lidar = torch.from_numpy(lidar_image(scan, frames.points[i], T_init, K, near_m))
     points = torch.from_numpy(frames.points[i][scan.index, :3].astype(np.float64))
     uv_true, _ = project_points(transform_points(torch.from_numpy(frames.T[i]), points), torch.from_numpy(K))
     uv, depth = torch.from_numpy(scan.uv), torch.from_numpy(scan.depth)

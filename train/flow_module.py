@@ -13,12 +13,17 @@ import numpy as np
 import torch
 
 from calib.synth.generate import RIGID_CLASSES
-from supportnet.flow_model import FlowConfig, FlowNet
+from supportnet.flow_model import LIDAR_CHANNELS, FlowConfig, FlowNet
 from train.config import FlowAugmentConfig, OptimConfig
 from train.module import one_cycle, photometric
 
 __all__ = ["FOLIAGE_CLASSES", "FlowModule", "sequence_loss"]
 
+MIRROR_SIGNS = {
+    "flow": (-1.0, 1.0),
+    "lidar": tuple(-1.0 if name == "edge_sin" else 1.0 for name in LIDAR_CHANNELS),
+}
+"""Channels that change sign in a mirrored image: flow x, and sin 2θ of an edge at angle θ."""
 FOLIAGE_CLASSES = {70}
 """Vegetation (the synthetic worlds' swaying leaves), the class CMRNext-style matching finds hard."""
 
@@ -59,7 +64,7 @@ class FlowModule(L.LightningModule):
         self._val: list[np.ndarray] = []
 
     def forward(self, image: torch.Tensor, lidar: torch.Tensor, all_iterations: bool = False):
-        """``image (B, 3, H, W)`` RGB in [0, 1] (normalised per the contract), ``lidar (B, 3, H, W)``."""
+        """``image (B, 3, H, W)`` RGB in [0, 1] (normalised per the contract), ``lidar (B, 5, H, W)``."""
         return self.net((image - self.mean) / self.std, lidar, all_iterations)
 
     def on_train_epoch_start(self) -> None:
@@ -70,11 +75,11 @@ class FlowModule(L.LightningModule):
             return batch
         batch = dict(batch)
         mirror = torch.rand(len(batch["image"]), device=self.device) < self.augment.flip
-        for key in ("image", "lidar", "flow", "valid", "label"):  # a mirrored world, flow x negated
-            batch[key] = torch.where(mirror.view(-1, 1, 1, 1), batch[key].flip(-1), batch[key])
-        sign = torch.ones(len(mirror), 2, 1, 1, dtype=batch["flow"].dtype, device=self.device)
-        sign[:, 0] = torch.where(mirror, -1.0, 1.0).view(-1, 1, 1)
-        batch["flow"] = batch["flow"] * sign
+        for key in ("image", "lidar", "flow", "valid", "label"):  # a mirrored world
+            flipped = batch[key].flip(-1)
+            if key in MIRROR_SIGNS:
+                flipped = flipped * torch.tensor(MIRROR_SIGNS[key], device=self.device).view(1, -1, 1, 1)
+            batch[key] = torch.where(mirror.view(-1, 1, 1, 1), flipped, batch[key])
         batch["image"] = self.photometric(batch["image"]).clamp(0, 1)
         return batch
 
