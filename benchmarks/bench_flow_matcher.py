@@ -2,12 +2,13 @@
 
 Every 8th frame is matched under a fixed random extrinsic error (10 cm / 2°, seeded per frame, as
 the flow matcher's validation draws); a point's endpoint error is the distance from its matched
-pixel to where the reference extrinsic projects it. Medians by class (rigid structure, foliage),
-beside the error of not matching at all, the points each matcher returns and milliseconds per
-frame. Then the final calibration error of Stage 4 with either matcher, with uniform sampling and
-with SGIS on the predicted support map: ``--runs`` paired runs from 10 cm / 2° on an 80-frame
-held-out sequence of each world (the same initial draws for every matcher and support). Prints
-tables and writes benchmarks/results/flow_matcher.json.
+pixel to where the reference extrinsic projects it. Medians over each matcher's own points, over
+the points every matcher returned ("common": the EdgeMatcher keeps only confident ones), and by
+class (rigid structure, foliage), beside the error of not matching at all, the points each
+matcher returns and milliseconds per frame. Then the final calibration error of Stage 4 with
+either matcher, with uniform sampling and with SGIS on the predicted support map: ``--runs``
+paired runs from 10 cm / 2° on an 80-frame held-out sequence of each world (the same initial
+draws for every matcher and support). Prints tables and writes benchmarks/results/flow_matcher.json.
 
     python benchmarks/bench_flow_matcher.py [--data build/model/vineyard:09 ...] [--model FILE]
         [--real] [--runs 10]
@@ -59,19 +60,23 @@ def _held_out(world: str, tmp: Path) -> str:
 def evaluate(data: str, matchers: dict, stride: int = 8) -> dict:
     """Endpoint errors and timings of each matcher on one sequence (``root:sequence``)."""
     root, _, sequence = data.rpartition(":") if ":" in Path(data).name else (data, "", "")
-    errors = {name: {"all": [], "rigid": [], "foliage": [], "none": []} for name in matchers}
+    errors = {name: {"all": [], "rigid": [], "foliage": [], "none": [], "common": []} for name in matchers}
     seconds = {name: [] for name in matchers}
     with open_dataset(Path(root), sequence=sequence or None) as seq:
         for i in range(0, len(seq), stride):
             frame = seq[i]
             T_ref = frame.calibration.T_cam_lidar
             T_init = perturb(T_ref, *ERROR, torch.Generator().manual_seed(i))
+            found = {}
             for name, matcher in matchers.items():
                 start = time.perf_counter()
-                corr = matcher.match(frame, T_init)
+                found[name] = matcher.match(frame, T_init)
                 seconds[name].append(time.perf_counter() - start)
+            common = set.intersection(*(set(corr.index.tolist()) for corr in found.values()))
+            for name, corr in found.items():
                 truth = _true_uv(corr.points_lidar, T_ref, frame.K)
                 epe = np.linalg.norm(corr.uv_matched - truth, axis=1)
+                errors[name]["common"].append(epe[np.isin(corr.index, list(common))])
                 labels = np.asarray(frame.labels)[corr.index] if frame.labels is not None else None
                 errors[name]["all"].append(epe)
                 errors[name]["none"].append(np.linalg.norm(corr.uv - truth, axis=1))
@@ -85,6 +90,7 @@ def evaluate(data: str, matchers: dict, stride: int = 8) -> dict:
             "epe_median_px": float(np.median(e["all"])),
             "epe_median_rigid_px": float(np.median(e["rigid"])) if len(e["rigid"]) else None,
             "epe_median_foliage_px": float(np.median(e["foliage"])) if len(e["foliage"]) else None,
+            "epe_median_common_px": float(np.median(e["common"])) if len(e["common"]) else None,
             "no_matching_median_px": float(np.median(e["none"])),
             "points_per_frame": len(e["all"]) / len(seconds[name]),
             "ms_per_frame": 1000 * float(np.median(seconds[name][1:] or seconds[name])),
@@ -155,13 +161,22 @@ def main() -> None:
             else {}
         )
     print(f"error {ERROR[0]:.0f} cm / {ERROR[1]:.0f} deg; endpoint error medians in pixels")
-    columns = ("all", 6), ("rigid", 6), ("foliage", 8), ("none", 6), ("pts/frame", 10), ("ms", 6)
+    columns = (
+        ("all", 6),
+        ("common", 6),
+        ("rigid", 6),
+        ("foliage", 8),
+        ("none", 6),
+        ("pts/frame", 10),
+        ("ms", 6),
+    )
     print(f"{'sequence':26} {'matcher':8} " + " ".join(f"{name:>{width}}" for name, width in columns))
     for data, result in rows.items():
         for name, r in result.items():
             fmt = lambda v: f"{v:.2f}" if v is not None else "-"  # noqa: E731
             print(
-                f"{data:26} {name:8} {r['epe_median_px']:>6.2f} {fmt(r['epe_median_rigid_px']):>6} "
+                f"{data:26} {name:8} {r['epe_median_px']:>6.2f} {fmt(r['epe_median_common_px']):>6} "
+                f"{fmt(r['epe_median_rigid_px']):>6} "
                 f"{fmt(r['epe_median_foliage_px']):>8} {r['no_matching_median_px']:>6.2f} "
                 f"{r['points_per_frame']:>10.0f} {r['ms_per_frame']:>6.0f}"
             )

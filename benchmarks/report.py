@@ -131,6 +131,71 @@ def hand_eye() -> list[str]:
     )
 
 
+def matchers() -> list[str]:
+    result = _load("flow_matcher")
+    if result is None:
+        return []
+    px = lambda v: f"{v:.2f}" if v is not None else "–"  # noqa: E731
+    rows = [
+        [
+            name,
+            matcher,
+            px(r["epe_median_px"]),
+            px(r.get("epe_median_common_px")),
+            px(r["epe_median_rigid_px"]),
+            px(r["epe_median_foliage_px"]),
+            px(r["no_matching_median_px"]),
+            f"{r['points_per_frame']:.0f}",
+        ]
+        for name, sequence in result["sequences"].items()
+        for matcher, r in sequence.items()
+    ]
+    cm, deg = result["error_cm_deg"]
+    lines = ["", f"Stage 2, endpoint error medians in px under a {cm:.0f} cm / {deg:.0f}° error:", ""]
+    lines += _table(
+        [
+            "sequence",
+            "matcher",
+            "own points",
+            "common points",
+            "rigid",
+            "foliage",
+            "no matching",
+            "points/frame",
+        ],
+        rows,
+    )
+    rows = []
+    for world, entries in result.get("calibration", {}).items():
+        for key, s in entries.items():
+            if key.startswith("flow_vs_edge"):
+                continue
+            matcher, support = key.split("/")
+            wins = entries.get(f"flow_vs_edge/{support}") if matcher == "flow" else None
+            won = (
+                f"{wins['translation_wins']}/{wins['runs']}, {wins['rotation_wins']}/{wins['runs']}"
+                if wins
+                else ""
+            )
+            t, r = s["translation_cm"], s["rotation_deg"]
+            rows.append(
+                [world, matcher, "sgis predicted" if support == "onnx" else support,
+                 f"{t['mean']:.2f} / {t['median']:.2f}", f"{r['mean']:.3f} / {r['median']:.3f}", won]
+            )  # fmt: skip
+    if rows:
+        lines += [
+            "",
+            "Stage 4 with each matcher from 10 cm / 2°, paired runs (held-out seed 9, 80 frames):",
+            "",
+        ]
+        lines += _table(
+            ["world", "matcher", "support", "translation cm mean / median", "rotation ° mean / median",
+             "flow beats edge t, r"],
+            rows,
+        )  # fmt: skip
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--readme", type=Path, default=Path("README.md"))
@@ -143,6 +208,7 @@ def main() -> None:
         *speed(),
         "",
         *accuracy(),
+        *matchers(),
         *hand_eye(),
     ]
     text = "\n".join(body) + "\n"

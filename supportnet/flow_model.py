@@ -5,8 +5,14 @@ a LiDAR point lands under the current extrinsic, ``f(x)`` says where in the RGB 
 really lies, ``x + f(x)``. As in RAFT (Teed & Deng, ECCV 2020): feature encoders at 1/8
 resolution for both images, an all-pairs correlation volume with a pyramid (RAFT Eq. 1–2), a
 context encoder on the LiDAR image, and a convolutional GRU that refines the flow from lookups of
-the volume around the current estimate (RAFT Sec. 3.3). The flow is upsampled ×8 bilinearly
-(RAFT's convex upsampling is left out to keep the network small).
+the volume around the current estimate (RAFT Sec. 3.3).
+
+In place of RAFT's convex upsampling, the GRU refines the local model of the flow an extrinsic
+error causes, ``f(x) = a(x) + b(x) · ρ(x)`` with ``ρ = near_m / depth`` (rotation moves a point
+independently of its depth, translation in inverse proportion to it; the EdgeMatcher fits the same
+model): ``a`` and ``b`` vary smoothly and are upsampled ×8 bilinearly, ``ρ`` is read at full
+resolution from the LiDAR image, so a pole and the field behind it in one 8x8 cell get their own
+flows.
 
 A second, fixed correlation volume sits beside the learned one: of the two modalities' edge
 orientation fields ``e · (cos 2θ, sin 2θ)`` (those the training-free EdgeMatcher correlates), the
@@ -175,25 +181,27 @@ class ConvGRU(nn.Module):
 
 
 class UpdateBlock(nn.Module):
-    """Motion features (correlation + current flow) → GRU → flow increment."""
+    """Motion features (correlation + current flow model) → GRU → increment of the flow model."""
 
     def __init__(self, config: FlowConfig) -> None:
         super().__init__()
         corr = 2 * config.levels * (2 * config.radius + 1) ** 2  # the learned and the edge volume
         self.motion = nn.Sequential(
-            nn.Conv2d(corr + 2, 64, 3, padding=1), nn.ReLU(inplace=True), nn.Conv2d(64, 62, 3, padding=1)
+            nn.Conv2d(corr + 4, 64, 3, padding=1), nn.ReLU(inplace=True), nn.Conv2d(64, 60, 3, padding=1)
         )
         self.gru = ConvGRU(config.hidden_dim, 64 + config.context_dim)
         self.head = nn.Sequential(
             nn.Conv2d(config.hidden_dim, 64, 3, padding=1),
             nn.ReLU(inplace=True),
-            nn.Conv2d(64, 2, 3, padding=1),
+            nn.Conv2d(64, 4, 3, padding=1),
         )
 
     def forward(
-        self, h: torch.Tensor, context: torch.Tensor, corr: torch.Tensor, flow: torch.Tensor
+        self, h: torch.Tensor, context: torch.Tensor, corr: torch.Tensor, model: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        motion = torch.cat([F.relu(self.motion(torch.cat([corr, flow], dim=1))), flow], dim=1)
+        """One step: ``model (B, 4, h, w)`` is the current ``(a, b)``; returns the new state and
+        the increment of ``(a, b)``."""
+        motion = torch.cat([F.relu(self.motion(torch.cat([corr, model], dim=1))), model], dim=1)
         h = self.gru(h, torch.cat([motion, context], dim=1))
         return h, self.head(h)
 
@@ -258,15 +266,18 @@ class FlowNet(nn.Module):
             indexing="ij",
         )
         base = torch.stack([xs, ys]).unsqueeze(0)
-        flow = torch.zeros(B, 2, h8, w8, dtype=image.dtype, device=image.device)
+        rho = lidar[:, 1:2]  # near_m / depth, 0 where no point
+        rho_cell = F.avg_pool2d(rho, STRIDE) / F.avg_pool2d(lidar[:, :1], STRIDE).clamp_min(1e-6)
+        model = torch.zeros(B, 4, h8, w8, dtype=image.dtype, device=image.device)  # (a, b)
         flows = []
         for step in range(self.config.iterations):
+            flow = model[:, :2] + model[:, 2:] * rho_cell  # the cell's mean point, 1/8 pixels
             corr = torch.cat(
                 [lookup(volume, base + flow, self.config.radius) for volume in (pyramid, edges)], 1
             )
-            h, delta = self.update(h, context, corr, flow)
-            flow = flow + delta
+            h, delta = self.update(h, context, corr, model)
+            model = model + delta
             if all_iterations or step == self.config.iterations - 1:
-                up = STRIDE * F.interpolate(flow, scale_factor=STRIDE, mode="bilinear", align_corners=False)
-                flows.append(up[..., :H, :W])
+                up = F.interpolate(model, scale_factor=STRIDE, mode="bilinear", align_corners=False)
+                flows.append((STRIDE * (up[:, :2] + up[:, 2:] * rho))[..., :H, :W])
         return flows if all_iterations else flows[-1]

@@ -67,8 +67,9 @@ def class_residual_chart(stats: list[ClassStats], path: Path, title: str) -> Non
 
 
 def learning_curves(metrics_csv: Path, path: Path) -> None:
-    """Training and validation loss (left) and validation Pearson r / Spearman ρ (right) per
-    epoch, from Lightning's ``metrics.csv``, as a PNG."""
+    """Training and validation loss (left) and every other validation metric (right) per epoch,
+    from Lightning's ``metrics.csv``, as a PNG: Pearson r / Spearman ρ / MAE for the support
+    predictor, endpoint errors by class for the flow matcher."""
     import csv
 
     import matplotlib
@@ -83,18 +84,14 @@ def learning_curves(metrics_csv: Path, path: Path) -> None:
                 if value and key not in ("epoch", "step") and row.get("epoch"):
                     series.setdefault(key, {})[int(row["epoch"])] = float(value)
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.6))
-    for key, ax in (
-        ("train/loss_epoch", left),
-        ("val/loss", left),
-        ("val/pearson", right),
-        ("val/spearman", right),
-        ("val/mae", right),
-    ):
-        if key in series:
+    for key in sorted(series):
+        ax = left if key in ("train/loss_epoch", "val/loss") else right if key.startswith("val/") else None
+        if ax is not None:
             epochs = sorted(series[key])
             ax.plot(epochs, [series[key][e] for e in epochs], marker=".", label=key)
-    left.set(xlabel="epoch", ylabel="weighted BCE", title="loss")
-    right.set(xlabel="epoch", title="validation (held-out sequences)", ylim=(0, 1))
+    left.set(xlabel="epoch", title="loss")
+    right.set(xlabel="epoch", title="validation (held-out sequences)")
+    right.set_ylim(bottom=0)
     for ax in (left, right):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)

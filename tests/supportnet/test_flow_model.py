@@ -139,3 +139,21 @@ def test_contract_carries_the_lidar_encoding():
         "lidar_channels": list(LIDAR_CHANNELS),
     }
     assert np.allclose(contract.mean, (0.485, 0.456, 0.406))
+
+
+def test_flow_is_a_plus_b_times_inverse_depth_at_full_resolution():
+    # a head that always adds (a, b) = (0, 0, 0.5, 0): after N steps b_x = N / 2 everywhere, so the
+    # flow is 8 · (N / 2) · ρ at every pixel, ρ read per pixel, not per 8x8 cell
+    net = FlowNet(SMALL).eval()
+    head = net.update.head[-1]
+    torch.nn.init.zeros_(head.weight)
+    with torch.no_grad():
+        head.bias.copy_(torch.tensor([0.0, 0.0, 0.5, 0.0]))
+    lidar = torch.zeros(1, len(LIDAR_CHANNELS), 16, 24)
+    lidar[0, 0, 3, 4], lidar[0, 1, 3, 4] = 1.0, 0.2  # two points in one cell, 10 m and 4 m away
+    lidar[0, 0, 3, 5], lidar[0, 1, 3, 5] = 1.0, 0.5
+    with torch.no_grad():
+        flow = net(torch.randn(1, 3, 16, 24), lidar)
+    n = SMALL.iterations
+    assert torch.allclose(flow[0, 0, 3, 4:6], torch.tensor([8 * n / 2 * 0.2, 8 * n / 2 * 0.5]))
+    assert flow[0, 1].abs().max() == 0
