@@ -19,10 +19,13 @@ from results_io import save_results
 from rich.console import Console
 
 from calib.errors import NumericalError
-from supportnet.calibrate import load_calibrate_config, run_calibrate
-from supportnet.init_calib import load_stage1_config, run_init_calib
-from supportnet.maps import load_maps_config, run_maps
-from supportnet.synth import run_synth
+from calib.init.motion_init import load_stage1_config
+from calib.refine.passes import load_calibrate_config
+from calib.support.support_maps import load_maps_config
+from supportnet.cli.cmd_calibrate import run_calibrate
+from supportnet.cli.cmd_init_calib import run_init_calib
+from supportnet.cli.cmd_maps import run_maps
+from supportnet.cli.cmd_synth import run_synth
 
 WORLDS = ("vineyard", "urban")
 

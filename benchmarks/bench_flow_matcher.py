@@ -30,14 +30,15 @@ from results_io import save_results
 from rich.console import Console
 
 from calib.data import open_dataset
-from calib.edge_matcher import EdgeMatcher
+from calib.data.real_fixtures import kitti_object_from_mmdet, realdata_root
 from calib.geometry import perturb
+from calib.match.edge_matcher import EdgeMatcher
 from calib.projection import project_points, transform_points
-from calib.synth.config import load_synth_config
+from calib.refine.passes import load_calibrate_config
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, write_sequence
-from supportnet.calibrate import load_calibrate_config, paired_wins, run_calibrate
-from supportnet.fixtures import kitti_object_from_mmdet, realdata_root
-from supportnet.flow_matcher import SHIPPED_FLOW_MODEL, FlowMatcher
+from calib.synth.synth_config import load_synth_config
+from supportnet.cli.cmd_calibrate import paired_wins, run_calibrate
+from supportnet.runtime.flow_matcher import SHIPPED_FLOW_MODEL, FlowMatcher
 from train.flow_module import FOLIAGE_CLASSES
 
 ERROR = (10.0, 2.0)

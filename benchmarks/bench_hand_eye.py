@@ -11,7 +11,7 @@ from results_io import save_results
 from scipy.spatial.transform import Rotation
 
 from calib.geometry import calibration_error
-from calib.hand_eye import HandEyeConfig, hand_eye
+from calib.init.hand_eye import HandEyeConfig, hand_eye
 
 POSES, DRAWS = 20, 20
 NOISE = [(0.0, 0.0), (0.05, 0.2), (0.1, 0.5), (0.2, 1.0)]  # camera pose noise: degrees, cm

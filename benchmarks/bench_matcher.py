@@ -8,10 +8,10 @@ import time
 import numpy as np
 from results_io import save_results
 
-from calib.edge_matcher import EdgeMatcher
-from calib.support import support_maps
-from calib.synth.config import load_synth_config
+from calib.match.edge_matcher import EdgeMatcher
+from calib.support.support_maps import support_maps
 from calib.synth.generate import Synthesizer
+from calib.synth.synth_config import load_synth_config
 
 FRAMES = 10
 

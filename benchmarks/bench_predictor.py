@@ -13,9 +13,9 @@ import numpy as np
 import torch
 from results_io import save_results
 
-from export.onnx import export_network
-from supportnet.model import ModelConfig, SupportUNet
-from supportnet.predictor import SHIPPED_MODEL, SupportPredictor
+from export.onnx_export import export_network
+from supportnet.nets.support_unet import ModelConfig, SupportUNet
+from supportnet.runtime.support_predictor import SHIPPED_MODEL, SupportPredictor
 
 SHAPE, REPEATS = (188, 624), 50
 

@@ -10,9 +10,9 @@ import numpy as np
 import torch
 from results_io import save_results
 
-from calib.calibrate import SamplingConfig, draw
 from calib.geometry import calibration_error, perturb
-from calib.refine import refine_extrinsic
+from calib.refine.passes import SamplingConfig, draw
+from calib.refine.solver import refine_extrinsic
 
 FRAMES, CANDIDATES, PER_FRAME, REPEATS = 10, 20_000, 2000, 7
 SAMPLING = SamplingConfig(per_frame=PER_FRAME, floor=0.01)

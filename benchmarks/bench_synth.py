@@ -18,10 +18,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from calib.labels import sequence_label_agreement
-from calib.lidar_odometry import drift, lidar_odometry
-from calib.synth.config import load_synth_config
+from calib.data.label_agreement import sequence_label_agreement
+from calib.init.lidar_odometry import drift, lidar_odometry
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, write_sequence
+from calib.synth.synth_config import load_synth_config
 
 WORLDS = ("vineyard", "urban")
 

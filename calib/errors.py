@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["DataError", "NumericalError", "SupportnetError"]
+__all__ = ["ConfigError", "DataError", "NumericalError", "SupportnetError"]
 
 
 class SupportnetError(Exception):
@@ -22,6 +22,11 @@ class DataError(SupportnetError):
         self.path = Path(path)
         self.problem = problem
         super().__init__(f"{path}: {problem}")
+
+
+class ConfigError(DataError):
+    """A config file, option or value that cannot be used: a file that does not parse, an unknown
+    key, a value out of range. A kind of :class:`DataError` (it names its file or option first)."""
 
 
 class NumericalError(SupportnetError):

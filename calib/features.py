@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import torch
 
+from calib.data.types import Frame
+from calib.geometry import perturb
 from calib.projection import Visibility, project_scan
 
-__all__ = ["contour_alignment", "depth_discontinuities", "horizontal_gradient"]
+__all__ = ["contour_alignment", "contour_check", "depth_discontinuities", "horizontal_gradient"]
 
 
 def depth_discontinuities(
@@ -110,3 +113,27 @@ def contour_alignment(
         return 0.0
     pixels = np.round(projected.uv[on_contour]).astype(int)
     return float(edge_map[pixels[:, 1], pixels[:, 0]].mean())
+
+
+PERTURBATIONS = 8
+"""How many seeded 1° rotations :func:`contour_check` compares the reference with."""
+
+
+def contour_check(frame: Frame, ring: np.ndarray | None, seed: int = 0) -> dict:
+    """Contour alignment under the reference and under ``PERTURBATIONS`` seeded 1° rotations."""
+    T = frame.calibration.T_cam_lidar
+    contour, _ = depth_discontinuities(frame.points, ring)
+    generator = torch.Generator().manual_seed(seed)
+    edges = horizontal_gradient(frame.image)
+    reference = contour_alignment(edges, frame.points, contour, T, frame.K)
+    perturbed = [
+        contour_alignment(edges, frame.points, contour, perturb(T, 0.0, 1.0, generator), frame.K)
+        for _ in range(PERTURBATIONS)
+    ]
+    return {
+        "contour_points": len(contour),
+        "reference": reference,
+        "perturbed_mean": float(np.mean(perturbed)),
+        "perturbed_max": float(np.max(perturbed)),
+        "ratio": reference / float(np.mean(perturbed)),
+    }

@@ -1,3 +1,3 @@
-from supportnet.cli import main
+from supportnet.cli.app import main
 
 main()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calib.data import Calibration, Frame
-from supportnet.fixtures import realdata_root
+from calib.data.real_fixtures import realdata_root
 
 KITTI_K = np.array([[360.0, 0.0, 311.5], [0.0, 360.0, 93.5], [0.0, 0.0, 1.0]])
 

@@ -19,10 +19,10 @@ from torch.utils.data import DataLoader, Dataset
 from calib.data import open_dataset
 from calib.errors import DataError
 from calib.geometry import perturb
-from calib.matching import working_view
+from calib.match.correspondences import working_view
 from calib.projection import project_points, project_scan, render_image, transform_points
-from supportnet.flow_matcher import VISIBILITY, lidar_image
-from train.config import FlowDataConfig, SequenceSource
+from supportnet.runtime.flow_matcher import VISIBILITY, lidar_image
+from train.train_config import FlowDataConfig, SequenceSource
 
 __all__ = ["FlowDataModule", "ScanFrames", "curriculum_bound", "flow_sample", "load_scans"]
 

@@ -13,9 +13,9 @@ import numpy as np
 import torch
 
 from calib.synth.generate import RIGID_CLASSES
-from supportnet.flow_model import LIDAR_CHANNELS, FlowConfig, FlowNet
-from train.config import FlowAugmentConfig, OptimConfig
-from train.module import one_cycle, photometric
+from supportnet.nets.flow_net import LIDAR_CHANNELS, FlowConfig, FlowNet
+from train.support_module import one_cycle, photometric
+from train.train_config import FlowAugmentConfig, OptimConfig
 
 __all__ = ["FOLIAGE_CLASSES", "FlowModule", "sequence_loss"]
 

@@ -29,15 +29,16 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from export.onnx import export_onnx
-from supportnet.flow_matcher import SHIPPED_FLOW_MODEL
-from supportnet.maps import load_maps_config, run_maps
-from supportnet.outputs import write_json
-from supportnet.predict import run_predict
-from supportnet.predictor import SHIPPED_MODEL
-from supportnet.synth import run_synth
-from train.config import FlowTrainConfig, TrainConfig, load_train_config
-from train.run import run_train, run_train_flow
+from calib.support.support_maps import load_maps_config
+from export.onnx_export import export_onnx
+from supportnet.cli.cmd_maps import run_maps
+from supportnet.cli.cmd_predict import run_predict
+from supportnet.cli.cmd_synth import run_synth
+from supportnet.cli.output_dir import write_json
+from supportnet.runtime.flow_matcher import SHIPPED_FLOW_MODEL
+from supportnet.runtime.support_predictor import SHIPPED_MODEL
+from train.fit import run_train, run_train_flow
+from train.train_config import FlowTrainConfig, TrainConfig, load_train_config
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
 

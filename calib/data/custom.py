@@ -21,7 +21,6 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, model_validator
 
-from calib.config import read_yaml, validate
 from calib.data.io import IMAGE_SUFFIXES, SCAN_SUFFIXES, atomic_write_text, write_bin, write_image
 from calib.data.types import (
     Calibration,
@@ -33,6 +32,7 @@ from calib.data.types import (
     paired_timestamps,
 )
 from calib.errors import DataError
+from calib.yaml_io import read_yaml, validate
 
 __all__ = ["CalibrationFile", "is_custom", "read_calibration_yaml", "read_custom", "write_custom"]
 

@@ -15,9 +15,9 @@ import torch
 from calib.data.kitti_odometry import KittiOdometryWriter
 from calib.data.types import Calibration, Frame
 from calib.geometry import perturb, random_perturbation, se3_exp, se3_log
-from calib.synth.config import ExtrinsicConfig, SynthConfig
 from calib.synth.raycast import Raycaster
 from calib.synth.render import Camera, Lidar
+from calib.synth.synth_config import ExtrinsicConfig, SynthConfig
 from calib.synth.urban import build_urban
 from calib.synth.vineyard import build_vineyard
 from calib.synth.world import World

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.synth.config import LightConfig
 from calib.synth.materials import sky, surface, to_srgb
 from calib.synth.raycast import Raycaster
 from calib.synth.sensors import CameraConfig, LidarConfig, camera_rays, lidar_rays
+from calib.synth.synth_config import LightConfig
 
 __all__ = ["Camera", "Lidar", "LidarScan", "sun_direction"]
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 
 from calib.data.classes import SEMANTIC_KITTI
-from calib.synth.config import DriveConfig, SynthConfig, VineyardLayout
+from calib.synth.drive_path import Path, vehicle_poses
 from calib.synth.materials import material_id
-from calib.synth.path import Path, vehicle_poses
 from calib.synth.raycast import Mesh
 from calib.synth.shapes import boxes, car, leaf_cloud, tree, tubes
+from calib.synth.synth_config import DriveConfig, SynthConfig, VineyardLayout
 from calib.synth.terrain import Terrain
 from calib.synth.world import Drive, Foliage, World
 

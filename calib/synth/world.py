@@ -8,9 +8,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.synth.config import DriveConfig, WindConfig
-from calib.synth.path import Path, vehicle_poses
+from calib.synth.drive_path import Path, vehicle_poses
 from calib.synth.raycast import Mesh
+from calib.synth.synth_config import DriveConfig, WindConfig
 from calib.synth.terrain import Terrain
 
 __all__ = ["Drive", "Foliage", "Mover", "World"]

@@ -1,7 +1,7 @@
 import pytest
 
-from calib.synth.config import load_synth_config
 from calib.synth.generate import Synthesizer, write_sequence
+from calib.synth.synth_config import load_synth_config
 
 
 @pytest.fixture(scope="session")

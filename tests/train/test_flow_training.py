@@ -5,15 +5,15 @@ import pytest
 import torch
 
 from calib.data import open_dataset
-from calib.edge_matcher import EdgeMatcherConfig
 from calib.errors import DataError
-from export.onnx import export_onnx
-from supportnet.flow_matcher import FlowMatcher
-from supportnet.matchers import build_matcher
-from train.config import FlowDataConfig, FlowTrainConfig, load_train_config
+from calib.match.edge_matcher import EdgeMatcherConfig
+from export.onnx_export import export_onnx
+from supportnet.runtime.flow_matcher import FlowMatcher
+from supportnet.runtime.matcher_factory import build_matcher
+from train.fit import run_train_flow
 from train.flow_data import curriculum_bound, flow_sample, load_scans
 from train.flow_module import sequence_loss
-from train.run import run_train_flow
+from train.train_config import FlowDataConfig, FlowTrainConfig, load_train_config
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +118,7 @@ def test_flow_matcher_refuses_other_files(tmp_path):
 
 
 def test_a_support_model_is_not_a_flow_matcher():
-    from supportnet.predictor import SHIPPED_MODEL
+    from supportnet.runtime.support_predictor import SHIPPED_MODEL
 
     with pytest.raises(DataError, match="'logits' output; this needs 'flow'"):
         FlowMatcher(SHIPPED_MODEL)

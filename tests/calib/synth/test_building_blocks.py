@@ -2,11 +2,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from calib.synth.config import WindConfig
+from calib.synth.drive_path import Path, vehicle_poses
 from calib.synth.noise import fbm, value_noise
-from calib.synth.path import Path, vehicle_poses
 from calib.synth.raycast import Mesh, Raycaster
 from calib.synth.shapes import boxes, leaves, tubes
+from calib.synth.synth_config import WindConfig
 from calib.synth.terrain import Terrain
 from calib.synth.world import Foliage
 

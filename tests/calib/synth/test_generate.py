@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from calib.data import open_dataset
+from calib.data.label_agreement import sequence_label_agreement
 from calib.errors import DataError
 from calib.geometry import calibration_error, perturb
-from calib.labels import sequence_label_agreement
-from calib.synth.config import ExtrinsicConfig, load_synth_config
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, reference_extrinsic, write_sequence
+from calib.synth.synth_config import ExtrinsicConfig, load_synth_config
 
 SMALL = {
     "camera": {"width": 312, "height": 94, "fx": 180.4, "fy": 180.4, "cx": 152.4, "cy": 43.2},

@@ -1,0 +1,161 @@
+"""``supportnet export``: a training checkpoint → a checked ONNX model (support predictor or flow
+matcher, told apart by the checkpoint).
+
+The graph takes *normalised* inputs (the contract in the metadata says how to make them), has
+dynamic batch, height and width, and is verified three ways before it is written: ``onnx.checker``,
+onnxruntime against torch on a shape other than the export shape (max abs diff of the output),
+and the metadata read back the way the run-time classes read it.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+
+from calib.errors import DataError, NumericalError
+from supportnet.nets.contract import METADATA_KEY, Contract
+from supportnet.nets.flow_net import LIDAR_CHANNELS, FlowConfig, FlowNet
+from supportnet.nets.support_unet import ModelConfig, SupportUNet
+from supportnet.runtime.support_predictor import open_model
+
+__all__ = ["export_network", "export_onnx", "load_checkpoint"]
+
+EXPORT_SIZE = (128, 320)
+CHECK_SHAPE = (2, 3, 97, 203)
+"""Parity is checked on this shape: another batch, and sizes that are not multiples of the stride."""
+
+
+def load_checkpoint(ckpt: Path) -> tuple[nn.Module, Contract]:
+    """The network (eval mode) and its contract from a ``supportnet train`` or ``train-flow``
+    checkpoint."""
+    ckpt = Path(ckpt)
+    if not ckpt.is_file():
+        raise DataError(ckpt, "checkpoint not found")
+    try:
+        state = torch.load(ckpt, map_location="cpu", weights_only=False)
+        hparams = state["hyper_parameters"]
+        if "near_m" in hparams:
+            net = FlowNet(FlowConfig(**hparams["model"]))
+            contract = net.contract(hparams["near_m"], hparams["working_focal_px"])
+        else:
+            net = SupportUNet(ModelConfig(**hparams["model"]))
+            contract = net.contract(hparams.get("target", "agreement"))
+        weights = {k.removeprefix("net."): v for k, v in state["state_dict"].items() if k.startswith("net.")}
+    except Exception as exc:  # torch raises many types for a file that is not a checkpoint
+        raise DataError(
+            ckpt, f"is not a supportnet training checkpoint ({type(exc).__name__}: {exc})"
+        ) from None
+    net.load_state_dict(weights)
+    return net.eval(), contract
+
+
+def export_onnx(
+    ckpt: Path, out: Path, opset: int = 17, overwrite: bool = False, tolerance: float = 1e-4
+) -> dict:
+    """Export the network of a training checkpoint, check it and write ``out``; returns the
+    checks' figures.
+
+    Raises:
+        DataError: ``out`` exists (without ``overwrite``) or the checkpoint is unusable.
+        NumericalError: onnxruntime and torch disagree by more than ``tolerance``.
+    """
+    if Path(out).exists() and not overwrite:
+        raise DataError(out, "already exists; pass --overwrite to replace it")
+    if opset < 17:
+        raise DataError("--opset", f"must be 17 or newer, got {opset}")
+    net, contract = load_checkpoint(ckpt)
+    return export_network(net, contract, Path(out), opset, tolerance, {"source_checkpoint": str(ckpt)})
+
+
+DOCS = {
+    "logits": "supportnet support predictor: normalised RGB (NCHW) -> support logits",
+    "flow": "supportnet flow matcher: normalised RGB and LiDAR image (NCHW) -> flow in pixels",
+}
+
+
+def export_network(
+    net: nn.Module,
+    contract: Contract,
+    out: Path,
+    opset: int = 17,
+    tolerance: float = 1e-4,
+    props: dict | None = None,
+) -> dict:
+    """Export a support predictor or a flow matcher (eval mode; ``contract.output`` says which) with
+    ``contract`` in its metadata, check it, write ``out``."""
+    rng = np.random.default_rng(0)
+    images = rng.integers(0, 256, (CHECK_SHAPE[0], *CHECK_SHAPE[2:], 3), dtype=np.uint8)
+    check = {"image": contract.preprocess(images)}
+    if contract.output == "flow":
+        lidar = rng.random((CHECK_SHAPE[0], len(LIDAR_CHANNELS), *CHECK_SHAPE[2:]), dtype=np.float32)
+        check["lidar"] = lidar * (lidar[:, :1] > 0.9)  # sparse, as a projected scan is
+    return _export(net, contract, out, check, contract.output, opset, tolerance, props)
+
+
+def _export(
+    net: nn.Module,
+    contract: Contract,
+    out: Path,
+    check: dict[str, np.ndarray],
+    output: str,
+    opset: int,
+    tolerance: float,
+    props: dict | None,
+) -> dict:
+    """Trace ``net`` on inputs named as ``check``'s keys, write it with its contract, and compare
+    onnxruntime with torch on ``check``."""
+    net = net.eval()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".onnx", dir=out.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    names = list(check)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notice
+            torch.onnx.export(
+                net,
+                tuple(torch.zeros(1, x.shape[1], *EXPORT_SIZE) for x in check.values()),
+                str(tmp),
+                opset_version=opset,
+                input_names=names,
+                output_names=[output],
+                dynamic_axes={name: {0: "batch", 2: "height", 3: "width"} for name in [*names, output]},
+                dynamo=False,
+            )
+        model = onnx.load(str(tmp))
+        onnx.checker.check_model(model, full_check=True)
+        model.doc_string = DOCS[output]
+        onnx.helper.set_model_props(model, {METADATA_KEY: contract.to_json(), **(props or {})})
+        onnx.save(model, str(tmp))
+        session, read_back = open_model(tmp, output)
+        if read_back != contract:
+            raise NumericalError(f"{tmp}: the contract read back differs from the one written")
+        with torch.no_grad():
+            expected = net(*(torch.from_numpy(x) for x in check.values())).numpy()
+        (actual,) = session.run(None, check)
+        diff = float(np.abs(actual - expected).max())
+        if actual.shape != expected.shape or not diff <= tolerance:
+            raise NumericalError(
+                f"onnxruntime and torch disagree on {CHECK_SHAPE}: shapes {actual.shape}/{expected.shape}, "
+                f"max abs diff {diff:.2e} > {tolerance:.0e}"
+            )
+        tmp.chmod(0o644)  # mkstemp made it private
+        tmp.replace(out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return {
+        "model": str(out),
+        "bytes": out.stat().st_size,
+        "opset": opset,
+        "parity_shape": list(CHECK_SHAPE),
+        "max_abs_diff": diff,
+        "contract": contract.to_json(),
+    }

@@ -1,0 +1,304 @@
+"""The ``supportnet`` command line (DESIGN.md's CLI contract). Heavy modules are imported inside
+each command so ``supportnet --help`` stays instant."""
+
+from __future__ import annotations
+
+import sys
+from enum import Enum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from calib.errors import SupportnetError
+from supportnet.cli.options import Overwrite
+
+app = typer.Typer(
+    name="supportnet",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+
+class World(str, Enum):
+    vineyard = "vineyard"
+    urban = "urban"
+
+
+@app.command()
+def synth(
+    world: Annotated[World, typer.Option(help="Which synthetic world.")],
+    out: Annotated[Path, typer.Option(help="Dataset root (KITTI odometry layout).")],
+    frames: Annotated[int, typer.Option(help="Number of frames (10 Hz by default).")] = 100,
+    seed: Annotated[int, typer.Option(help="Seed: world, extrinsic and noise all follow from it.")] = 0,
+    sequence: Annotated[str, typer.Option(help="Sequence folder name under sequences/.")] = "00",
+    config: Annotated[
+        Path | None, typer.Option(help="World config (default: configs/synth/<world>.yaml).")
+    ] = None,
+    workers: Annotated[int, typer.Option(help="Processes rendering frames in parallel.")] = 2,
+    drift: Annotated[
+        str | None,
+        typer.Option(help="CM,DEG: the extrinsic drifts this far by the last frame (a loosening mount)."),
+    ] = None,
+    fmt: Annotated[
+        str, typer.Option("--format", help="kitti (KITTI odometry layout) or bag (a ROS 2 bag folder).")
+    ] = "kitti",
+    overwrite: Overwrite = False,
+) -> None:
+    """Write a synthetic sequence with ground truth: images, scans, point and pixel labels,
+    poses, the reference extrinsic (calib.txt) and meta.json (with drift: every frame's true
+    extrinsic); or the same frames as a ROS 2 bag."""
+    from supportnet.cli.cmd_synth import parse_drift, run_synth
+
+    run_synth(
+        world.value,
+        frames,
+        seed,
+        out,
+        sequence,
+        config,
+        overwrite,
+        workers,
+        drift=parse_drift(drift),
+        fmt=fmt,
+    )
+
+
+@app.command()
+def info(
+    data: Annotated[Path, typer.Argument(help="Dataset folder or ROS bag.")],
+    sequence: Annotated[
+        str | None, typer.Option(help="Sequence (KITTI odometry) or drive (KITTI raw).")
+    ] = None,
+    camera: Annotated[int, typer.Option(help="KITTI camera index (2 = left colour).")] = 2,
+    check_all: Annotated[
+        bool, typer.Option("--check-all", help="Read every frame, not only the first.")
+    ] = False,
+) -> None:
+    """What a dataset holds (layout, frames, resolution, intrinsics, extrinsic, time span,
+    label classes) and the problems found. Exit code 2 when there are problems."""
+    from rich.console import Console
+
+    from supportnet.cli.cmd_info import info as run_info
+
+    raise typer.Exit(run_info(data, sequence, camera, check_all, Console()))
+
+
+class MatcherName(str, Enum):
+    edge = "edge"
+    flow = "flow"
+
+
+@app.command()
+def maps(
+    data: Annotated[Path, typer.Option(help="Dataset with a reference calibration.")],
+    out: Annotated[Path, typer.Option(help="Maps folder to write.")],
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    matcher: Annotated[
+        MatcherName | None, typer.Option(help="Stage 2 matcher (default: the config's).")
+    ] = None,
+    sigma: Annotated[float | None, typer.Option(help="σ of Eq. 2 in pixels (default: the config's).")] = None,
+    config: Annotated[Path | None, typer.Option(help="Maps config (default: configs/maps.yaml).")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Continue an interrupted run.")] = False,
+    overwrite: Overwrite = False,
+) -> None:
+    """Stage 3 offline: per-frame and whole-sequence support, coverage and agreement maps from
+    the matcher's residuals under the reference calibration (Eq. 2)."""
+    from calib.support.support_maps import load_maps_config
+    from supportnet.cli.cmd_maps import run_maps
+
+    cfg = load_maps_config(config, matcher=matcher.value if matcher else None, sigma_px=sigma)
+    run_maps(data, sequence, out, cfg, overwrite, resume)
+
+
+class ClassSourceName(str, Enum):
+    auto = "auto"
+    points = "points"
+    image = "image"
+    exg = "exg"
+
+
+@app.command()
+def analyze(
+    data: Annotated[Path, typer.Option(help="Dataset with a reference calibration.")],
+    out: Annotated[Path, typer.Option(help="Report folder to write.")],
+    sequences: Annotated[
+        str | None, typer.Option(help="Comma-separated sequences, e.g. 00,01 (default: all).")
+    ] = None,
+    maps: Annotated[
+        Path | None,
+        typer.Option(help="Maps of `supportnet maps` (a folder, or one per sequence in it): adds support."),
+    ] = None,
+    classes: Annotated[
+        ClassSourceName,
+        typer.Option(help="Where classes come from: point labels, image label PNGs, or Excess Green + Otsu."),
+    ] = ClassSourceName.auto,
+    stride: Annotated[int, typer.Option(help="Analyse every stride-th frame.")] = 1,
+    matcher: Annotated[
+        MatcherName | None, typer.Option(help="Stage 2 matcher (default: the config's).")
+    ] = None,
+    config: Annotated[Path | None, typer.Option(help="Maps config (default: configs/maps.yaml).")] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Experiments 1 and 2: class-wise mean and median |Δu|, |Δv| of the matcher under the reference
+    calibration, as CSV, JSON and the paper's bar chart."""
+    from calib.support.support_maps import load_maps_config
+    from supportnet.cli.cmd_analyze import run_analyze
+
+    cfg = load_maps_config(config, matcher=matcher.value if matcher else None)
+    names = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else None
+    run_analyze(data, names, out, cfg, maps, classes.value, stride, overwrite)
+
+
+@app.command()
+def predict(
+    data: Annotated[Path, typer.Option(help="Dataset (any supported layout).")],
+    out: Annotated[Path, typer.Option(help="Folder of predicted maps to write.")],
+    model: Annotated[Path | None, typer.Option(help="ONNX model (default: the shipped one).")] = None,
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    maps: Annotated[
+        Path | None, typer.Option(help="Offline maps of this sequence: score the predictions against them.")
+    ] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Stage 3 online: the learned support map of every frame (onnxruntime)."""
+    from supportnet.cli.cmd_predict import run_predict
+
+    run_predict(model, data, sequence, out, maps, overwrite)
+
+
+@app.command("init-calib")
+def init_calib(
+    data: Annotated[Path, typer.Option(help="Dataset (any supported layout) with motion.")],
+    out: Annotated[Path, typer.Option(help="Folder to write.")],
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    config: Annotated[
+        Path | None, typer.Option(help="Stage 1 config (default: configs/init_calib.yaml).")
+    ] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Stage 1: the initial extrinsic from motion (KISS-ICP, OpenCV visual odometry, time sync,
+    scaled hand–eye), with its uncertainty and what the motion could not observe."""
+    from calib.init.motion_init import load_stage1_config
+    from supportnet.cli.cmd_init_calib import run_init_calib
+
+    run_init_calib(data, sequence, out, load_stage1_config(config), overwrite)
+
+
+@app.command()
+def calibrate(
+    data: Annotated[Path, typer.Option(help="Dataset (any supported layout).")],
+    out: Annotated[Path, typer.Option(help="Report folder to write.")],
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    support: Annotated[
+        str, typer.Option(help="uniform, offline:MAPS, onnx[:MODEL]; comma-separated for paired runs.")
+    ] = "uniform",
+    init: Annotated[
+        str, typer.Option(help="Initial extrinsic: perturb:CM,DEG of the reference, file:PATH, stage1.")
+    ] = "perturb:10,2",
+    runs: Annotated[int, typer.Option(help="Repeat with new initial draws (paired across supports).")] = 1,
+    seed: Annotated[int, typer.Option(help="Seed of the initial draws and the sampling.")] = 0,
+    config: Annotated[
+        Path | None, typer.Option(help="Calibrate config (default: configs/calibrate.yaml).")
+    ] = None,
+    online: Annotated[
+        bool,
+        typer.Option(
+            "--online",
+            help="Calibrate the stream window by window (config: online): a running estimate, its "
+            "uncertainty and a drift alarm, per window in CSV/JSON and a plot.",
+        ),
+    ] = False,
+    overwrite: Overwrite = False,
+) -> None:
+    """Stage 4: support-guided (or uniform) sampling and weighted SE(3) refinement, in passes."""
+    from calib.refine.passes import load_calibrate_config
+    from supportnet.cli.cmd_calibrate import run_calibrate
+
+    cfg = load_calibrate_config(config)
+    if online:
+        from supportnet.cli.cmd_online import run_online
+
+        run_online(data, sequence, support, init, out, cfg, seed, overwrite)
+        return
+    run_calibrate(data, sequence, support, init, out, cfg, runs, seed, overwrite)
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option(help="Report folder.")] = Path("demo_out"),
+    frames: Annotated[int, typer.Option(help="Frames per synthetic sequence.")] = 40,
+    runs: Annotated[int, typer.Option(help="Paired Stage 4 runs per support.")] = 3,
+    overwrite: Overwrite = False,
+) -> None:
+    """The whole pipeline on a small vineyard and urban set: offline maps, class-wise residuals,
+    Stage 1 from motion, Stage 4 uniform vs SGIS (offline and predicted maps), the conventions on
+    the real fixtures; a table and report.md with overlays and charts."""
+    from supportnet.cli.cmd_demo import run_demo
+
+    run_demo(out, overwrite, frames, runs)
+
+
+def _version(value: bool) -> None:
+    if value:
+        from supportnet import __version__
+
+        typer.echo(f"supportnet {__version__}")
+        raise typer.Exit()
+
+
+_debug = {"on": False}
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+    debug: Annotated[bool, typer.Option("--debug", help="Show the traceback of an error.")] = False,
+) -> None:
+    """Online LiDAR–camera extrinsic calibration that knows where calibration evidence lives."""
+    _debug["on"] = debug
+
+
+def _register_plugins() -> None:
+    """Commands of the packages above ``supportnet`` (``train``, ``export``): they register
+    themselves through the ``supportnet.commands`` entry point, so no import points up."""
+    from importlib.metadata import entry_points
+
+    for entry in entry_points(group="supportnet.commands"):
+        entry.load()(app)
+
+
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM unwinds like Ctrl-C, so every output folder in progress is removed."""
+    raise KeyboardInterrupt
+
+
+def main() -> None:
+    """Console entry point: an error supportnet raises on purpose (data, config, numerical) and
+    an operating-system error on a named file end in one line on stderr and exit code 2
+    (``--debug``: the traceback); Ctrl-C and SIGTERM abort (code 1) and leave nothing behind."""
+    import signal
+
+    signal.signal(signal.SIGTERM, _terminate)
+    _register_plugins()
+    try:
+        app()
+    except SupportnetError as exc:
+        _fail(exc, f"{exc}")
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        _fail(exc, f"{where}{exc.strerror or exc}")
+
+
+def _fail(exc: BaseException, message: str) -> None:
+    if _debug["on"]:
+        raise exc
+    print(f"supportnet: error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

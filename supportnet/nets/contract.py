@@ -1,0 +1,69 @@
+"""The pre-processing contract between training and run time (numpy only).
+
+The exported ONNX model stores it in its metadata (key ``supportnet.contract``, JSON) and
+:class:`supportnet.runtime.support_predictor.SupportPredictor` reads it back, so a model always
+comes with how to feed it: RGB channels first, scaled to [0, 1], then normalised by ``mean`` and ``std``; the
+output is a logit (sigmoid → support in [0, 1]).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+__all__ = ["METADATA_KEY", "Contract"]
+
+METADATA_KEY = "supportnet.contract"
+
+
+@dataclass(frozen=True)
+class Contract:
+    """How images become the network's input and what its output means.
+
+    Attributes:
+        mean, std: per RGB channel, applied after scaling to [0, 1].
+        stride: the network pads inputs to a multiple of this (informational: it does so itself).
+        target: which offline map it learned (``agreement`` or ``support``).
+        layout: input layout, always ``NCHW`` float32 RGB.
+        output: ``logits`` (a support predictor, one channel) or ``flow`` (a flow matcher: two
+            channels, pixels; its LiDAR input is described in ``extra``).
+        version: of this contract.
+    """
+
+    mean: tuple[float, float, float] = (0.485, 0.456, 0.406)
+    std: tuple[float, float, float] = (0.229, 0.224, 0.225)
+    stride: int = 16
+    target: str = "agreement"
+    layout: str = "NCHW"
+    output: str = "logits"
+    version: int = 1
+    extra: dict = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> Contract:
+        """Raises ``ValueError`` (with the reason) when ``text`` is not a contract this code reads."""
+        data = json.loads(text)
+        if not isinstance(data, dict) or data.get("version") != 1:
+            raise ValueError(
+                f"unsupported contract version {data.get('version') if isinstance(data, dict) else data!r}"
+            )
+        if data.get("layout") != "NCHW" or data.get("output") not in ("logits", "flow"):
+            raise ValueError(f"unsupported layout/output {data.get('layout')}/{data.get('output')}")
+        data["mean"], data["std"] = tuple(data["mean"]), tuple(data["std"])
+        return cls(**data)
+
+    def preprocess(self, images: np.ndarray) -> np.ndarray:
+        """``(B, H, W, 3)`` or ``(H, W, 3)`` uint8 RGB → ``(B, 3, H, W)`` float32 input."""
+        images = np.asarray(images)
+        if images.ndim == 3:
+            images = images[None]
+        if images.ndim != 4 or images.shape[-1] != 3:
+            raise ValueError(f"expected (B, H, W, 3) or (H, W, 3) RGB images, got {images.shape}")
+        scaled = images.astype(np.float32) / (255.0 if images.dtype == np.uint8 else 1.0)
+        normalised = (scaled - np.float32(self.mean)) / np.float32(self.std)
+        return np.ascontiguousarray(normalised.transpose(0, 3, 1, 2))

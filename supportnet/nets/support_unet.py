@@ -1,0 +1,101 @@
+"""``SupportUNet``: the image → support-logit network of Stage 3 online.
+
+A small U-Net (Ronneberger et al. 2015) that runs at ``1/stem_stride`` of the input resolution:
+the support maps it learns are Gaussian sums with σ = 6 px (Eq. 2), so full-resolution features
+buy nothing but time. Any input size works: the input is padded to a multiple of ``stride`` and
+the output cropped back.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from pydantic import BaseModel, ConfigDict, Field
+from torch import nn
+
+from supportnet.nets.contract import Contract
+
+__all__ = ["ModelConfig", "SupportUNet"]
+
+
+class ModelConfig(BaseModel):
+    """Width and depth of :class:`SupportUNet`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    width: int = Field(12, ge=4, description="channels of the first level; each level doubles them")
+    depth: int = Field(3, ge=1, le=5, description="down-sampling levels below the stem")
+    stem_stride: int = Field(2, ge=1, le=4, description="the network runs at 1/stem_stride resolution")
+
+
+def _block(c_in: int, c_out: int) -> nn.Sequential:
+    """Two 3x3 convolutions, each with batch norm and ReLU."""
+    return nn.Sequential(
+        nn.Conv2d(c_in, c_out, 3, padding=1, bias=False),
+        nn.BatchNorm2d(c_out),
+        nn.ReLU(inplace=True),
+        nn.Conv2d(c_out, c_out, 3, padding=1, bias=False),
+        nn.BatchNorm2d(c_out),
+        nn.ReLU(inplace=True),
+    )
+
+
+class SupportUNet(nn.Module):
+    """RGB image → support logits (apply a sigmoid for support in [0, 1]).
+
+    Args:
+        config: width, depth and stem stride.
+
+    Shape:
+        - image: ``(B, 3, H, W)`` normalised RGB (see :mod:`supportnet.nets.contract`), any ``H, W``.
+        - output: ``(B, 1, H, W)`` logits.
+    """
+
+    def __init__(self, config: ModelConfig = ModelConfig()) -> None:
+        super().__init__()
+        self.config = config
+        widths = [config.width * 2**level for level in range(config.depth + 1)]
+        self.stem = nn.Sequential(
+            # a kernel of 2s − 1 taps sees every pixel at stride s (no aliasing gaps)
+            nn.Conv2d(
+                3,
+                widths[0],
+                2 * config.stem_stride - 1,
+                config.stem_stride,
+                config.stem_stride - 1,
+                bias=False,
+            ),
+            nn.BatchNorm2d(widths[0]),
+            nn.ReLU(inplace=True),
+        )
+        self.down = nn.ModuleList(
+            _block(c_in, c_out) for c_in, c_out in zip([widths[0], *widths[:-1]], widths, strict=True)
+        )
+        self.up = nn.ModuleList(_block(widths[i + 1] + widths[i], widths[i]) for i in range(config.depth))
+        self.head = nn.Conv2d(widths[0], 1, 1)
+
+    @property
+    def stride(self) -> int:
+        """Input sizes are padded to a multiple of this."""
+        return self.config.stem_stride * 2**self.config.depth
+
+    def contract(self, target: str = "agreement") -> Contract:
+        """The pre-processing contract an export of this network carries (its config included)."""
+        return Contract(stride=self.stride, target=target, extra={"model": self.config.model_dump()})
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        H, W = image.shape[-2:]
+        pad_h, pad_w = (-H) % self.stride, (-W) % self.stride
+        x = self.stem(F.pad(image, (0, pad_w, 0, pad_h), mode="replicate"))
+        skips = []
+        for level, block in enumerate(self.down):  # contracting path
+            x = block(x if level == 0 else F.max_pool2d(x, 2))
+            skips.append(x)
+        x = skips.pop()
+        for block in reversed(self.up):  # expanding path with skip connections
+            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+            x = block(torch.cat([x, skips.pop()], dim=1))
+        logits = F.interpolate(
+            self.head(x), scale_factor=float(self.config.stem_stride), mode="bilinear", align_corners=False
+        )
+        return logits[..., :H, :W]

@@ -1,0 +1,89 @@
+"""``--matcher flow``: the learned CMRNext-style matcher at run time (numpy + onnxruntime).
+
+The scan is projected under the extrinsic being tested and drawn as a LiDAR image (the channels of
+:data:`supportnet.nets.flow_net.LIDAR_CHANNELS`); the exported :class:`~supportnet.nets.flow_net.FlowNet`
+predicts, for every LiDAR pixel, where that point lies in the RGB image; each visible point's
+residual is the flow at its pixel.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from calib.data.types import Frame
+from calib.errors import DataError
+from calib.match.correspondences import Correspondences, working_view
+from calib.match.edge_matcher import lidar_edges
+from calib.projection import ProjectedScan, Visibility, project_scan
+from supportnet.nets.flow_net import LIDAR_CHANNELS, lidar_input
+from supportnet.runtime.support_predictor import open_model
+
+__all__ = ["SHIPPED_FLOW_MODEL", "VISIBILITY", "FlowMatcher", "lidar_image"]
+
+SHIPPED_FLOW_MODEL = Path(__file__).resolve().parents[1] / "assets" / "flow_matcher.onnx"
+"""The small matcher trained on the synthetic worlds (``make flow-model``)."""
+
+VISIBILITY = Visibility(window=3)
+"""The occlusion test of the projected scan, in training and at run time alike."""
+
+
+def lidar_image(
+    scan: ProjectedScan, points_lidar: np.ndarray, T_cam_lidar: np.ndarray, K: np.ndarray, near_m: float
+) -> np.ndarray:
+    """The network's LiDAR input of a scan projected under ``T_cam_lidar`` with ``K``:
+    ``(5, H, W)`` float32 (see :func:`supportnet.nets.flow_net.lidar_input`)."""
+    depth = torch.from_numpy(scan.depth_image())
+    intensity = torch.from_numpy(np.clip(scan.intensity_image(), 0.0, 1.0))
+    edges, _ = lidar_edges(scan, points_lidar, T_cam_lidar, K)
+    return lidar_input(depth, intensity, torch.from_numpy(edges), near_m).numpy()
+
+
+class FlowMatcher:
+    """Correspondences from an exported flow network.
+
+    Args:
+        model: the ``.onnx`` file (``supportnet export-flow``); the shipped one by default.
+        threads: onnxruntime intra-op threads (0: its default).
+
+    Raises:
+        DataError: the file is missing, not ONNX, or not a flow matcher.
+    """
+
+    name = "flow"
+
+    def __init__(self, model: str | Path = SHIPPED_FLOW_MODEL, threads: int = 0) -> None:
+        self.path = Path(model)
+        self.session, self.contract = open_model(self.path, "flow", threads)
+        self.near_m = float(self.contract.extra["near_m"])
+        self.focal_px = float(self.contract.extra["working_focal_px"])
+        if tuple(self.contract.extra["lidar_channels"]) != LIDAR_CHANNELS:
+            raise DataError(
+                self.path,
+                f"expects LiDAR channels {self.contract.extra['lidar_channels']}; this version draws "
+                f"{list(LIDAR_CHANNELS)}",
+            )
+
+    def dense_flow(self, image: np.ndarray, lidar: np.ndarray) -> np.ndarray:
+        """``(H, W, 3)`` uint8 RGB and ``(5, H, W)`` LiDAR image → ``(2, H, W)`` flow in pixels."""
+        feeds = {"image": self.contract.preprocess(image), "lidar": lidar[None].astype(np.float32)}
+        (flow,) = self.session.run(None, feeds)
+        return flow[0]
+
+    def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
+        """Correspondences of every visible point of ``frame`` under ``T_cam_lidar (4, 4)``."""
+        view = working_view(frame, self.focal_px)
+        scan = project_scan(frame.points, T_cam_lidar, view.K, view.image.shape[:2], VISIBILITY)
+        flow = self.dense_flow(view.image, lidar_image(scan, frame.points, T_cam_lidar, view.K, self.near_m))
+        r, c = np.rint(scan.uv[:, 1]).astype(int), np.rint(scan.uv[:, 0]).astype(int)
+        uv = view.to_frame(scan.uv)
+        return Correspondences(
+            scan.index.astype(np.int64),
+            frame.points[scan.index, :3].astype(np.float64),
+            uv,
+            uv + flow[:, r, c].T / view.scale,
+            np.ones(len(scan.index), np.float32),
+            frame.image_size,
+        )

@@ -1,0 +1,79 @@
+"""``SupportPredictor``: Stage 3 online, the exported U-Net in onnxruntime (numpy and
+onnxruntime only: no torch at run time)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from calib.errors import DataError
+from supportnet.nets.contract import METADATA_KEY, Contract
+
+__all__ = ["SHIPPED_MODEL", "SupportPredictor", "open_model"]
+
+SHIPPED_MODEL = Path(__file__).resolve().parents[1] / "assets" / "support_unet.onnx"
+"""The small model trained on the synthetic worlds (``make model``), used by ``--support onnx``."""
+
+
+class SupportPredictor:
+    """Predicts support maps from RGB images with an exported :class:`SupportUNet`.
+
+    Args:
+        model: path of the ``.onnx`` file written by ``supportnet export``.
+        threads: onnxruntime intra-op threads (0: its default, all cores).
+
+    Raises:
+        DataError: the file is missing, is not an ONNX model, or carries no supportnet contract.
+    """
+
+    def __init__(self, model: str | Path = SHIPPED_MODEL, threads: int = 0) -> None:
+        self.path = Path(model)
+        self.session, self.contract = open_model(self.path, "logits", threads)
+        self.input_name = self.session.get_inputs()[0].name
+
+    def predict(self, images: np.ndarray) -> np.ndarray:
+        """Support of every pixel.
+
+        Args:
+            images: ``(B, H, W, 3)`` or ``(H, W, 3)`` uint8 RGB, any ``H, W``.
+
+        Returns:
+            ``(B, H, W)`` float32 in [0, 1].
+        """
+        (logits,) = self.session.run(None, {self.input_name: self.contract.preprocess(images)})
+        return (1.0 / (1.0 + np.exp(-logits[:, 0]))).astype(np.float32)
+
+
+def open_model(path: Path, output: str, threads: int = 0) -> tuple[ort.InferenceSession, Contract]:
+    """An onnxruntime session of an exported supportnet model and its contract.
+
+    Args:
+        path: the ``.onnx`` file. output: what it must produce (``logits``: a support predictor,
+            ``flow``: a flow matcher). threads: intra-op threads (0: onnxruntime's default).
+
+    Raises:
+        DataError: the file is missing, is not an ONNX model, carries no supportnet contract, or
+            is the other kind of model.
+    """
+    if not path.is_file():
+        raise DataError(path, "model file not found (make one with `supportnet export`)")
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.log_severity_level = 3
+    try:
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own types for a non-ONNX file
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise DataError(path, f"is not a readable ONNX model ({first})") from None
+    meta = session.get_modelmeta().custom_metadata_map
+    if METADATA_KEY not in meta:
+        raise DataError(path, f"has no '{METADATA_KEY}' metadata; export it with `supportnet export`")
+    try:
+        contract = Contract.from_json(meta[METADATA_KEY])
+    except (ValueError, TypeError, KeyError) as exc:
+        raise DataError(path, f"carries a contract this version cannot read ({exc})") from None
+    if contract.output != output:
+        raise DataError(path, f"is a model with {contract.output!r} output; this needs {output!r}")
+    return session, contract

@@ -1,0 +1,103 @@
+import json
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from calib.errors import DataError
+from export.onnx_export import CHECK_SHAPE, export_onnx, load_checkpoint
+from supportnet.nets.contract import METADATA_KEY
+from supportnet.nets.support_unet import ModelConfig, SupportUNet
+from supportnet.runtime.support_predictor import SupportPredictor
+
+CONFIG = ModelConfig(width=4, depth=2, stem_stride=2)
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory):
+    """A checkpoint laid out as Lightning writes SupportModule's (random weights, BN statistics
+    moved off their defaults so eval-mode normalisation is exercised)."""
+    torch.manual_seed(0)
+    net = SupportUNet(CONFIG)
+    for m in net.modules():
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-0.5, 0.5)
+            m.running_var.uniform_(0.5, 2.0)
+    path = tmp_path_factory.mktemp("ckpt") / "model.ckpt"
+    torch.save(
+        {
+            "hyper_parameters": {"model": CONFIG.model_dump(), "target": "agreement"},
+            "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
+        },
+        path,
+    )
+    return path
+
+
+@pytest.fixture(scope="module")
+def exported(ckpt, tmp_path_factory):
+    out = tmp_path_factory.mktemp("onnx") / "support.onnx"
+    return out, export_onnx(ckpt, out)
+
+
+def test_export_is_checked_dynamic_and_matches_torch_on_another_shape(exported, ckpt):
+    out, report = exported
+    assert report["max_abs_diff"] <= 1e-4 and tuple(report["parity_shape"]) == CHECK_SHAPE
+    model = onnx.load(str(out))
+    onnx.checker.check_model(model)
+    assert max(o.version for o in model.opset_import if o.domain in ("", "ai.onnx")) >= 17
+    dims = [d.dim_param for d in model.graph.input[0].type.tensor_type.shape.dim]
+    assert dims == ["batch", "", "height", "width"]
+    # the predictor (numpy + onnxruntime) gives sigmoid(torch) on a third shape
+    net, contract = load_checkpoint(ckpt)
+    images = np.random.default_rng(1).integers(0, 256, (3, 51, 77, 3), dtype=np.uint8)
+    predicted = SupportPredictor(out).predict(images)
+    with torch.no_grad():
+        expected = torch.sigmoid(net(torch.from_numpy(contract.preprocess(images))))[:, 0].numpy()
+    assert predicted.shape == (3, 51, 77) and predicted.dtype == np.float32
+    assert 0 <= predicted.min() and predicted.max() <= 1
+    assert np.abs(predicted - expected).max() < 1e-5
+
+
+def test_metadata_round_trip(exported, ckpt):
+    out, _ = exported
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    stored = json.loads(meta[METADATA_KEY])
+    assert (
+        stored["stride"] == 8 and stored["target"] == "agreement" and stored["extra"]["model"]["width"] == 4
+    )
+    assert SupportPredictor(out).contract == load_checkpoint(ckpt)[1]
+
+
+def test_export_refuses_what_it_should(exported, ckpt, tmp_path):
+    out, _ = exported
+    with pytest.raises(DataError, match="already exists"):
+        export_onnx(ckpt, out)
+    with pytest.raises(DataError, match="17 or newer"):
+        export_onnx(ckpt, tmp_path / "m.onnx", opset=13)
+    with pytest.raises(DataError, match="checkpoint not found"):
+        export_onnx(tmp_path / "missing.ckpt", tmp_path / "m.onnx")
+    (tmp_path / "junk.ckpt").write_text("not a checkpoint")
+    with pytest.raises(DataError, match="not a supportnet training checkpoint"):
+        export_onnx(tmp_path / "junk.ckpt", tmp_path / "m.onnx")
+    assert not (tmp_path / "m.onnx").exists() and not list(tmp_path.glob(".m.onnx*"))
+
+
+def test_predictor_errors_name_the_file(tmp_path):
+    with pytest.raises(DataError, match="model file not found"):
+        SupportPredictor(tmp_path / "missing.onnx")
+    (tmp_path / "text.onnx").write_text("hello")
+    with pytest.raises(DataError, match="text.onnx: is not a readable ONNX model"):
+        SupportPredictor(tmp_path / "text.onnx")
+    bare = tmp_path / "bare.onnx"  # a valid ONNX model without the contract
+    tensor = onnx.helper.make_tensor_value_info("x", onnx.TensorProto.FLOAT, [1, 3, 4, 4])
+    graph = onnx.helper.make_graph(
+        [onnx.helper.make_node("Identity", ["x"], ["y"])], "bare", [tensor], [tensor.__class__(name="y")]
+    )
+    onnx.save(
+        onnx.helper.make_model(graph, opset_imports=[onnx.helper.make_opsetid("", 17)], ir_version=8),
+        str(bare),
+    )
+    with pytest.raises(DataError, match="no 'supportnet.contract' metadata"):
+        SupportPredictor(bare)

@@ -1,0 +1,85 @@
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from calib.errors import DataError
+from calib.geometry import calibration_error
+from calib.refine.passes import load_calibrate_config
+from calib.refine.tracking import OnlineConfig, OnlineState, departure, extrinsic_of
+from calib.synth.generate import Synthesizer, write_sequence
+from calib.synth.synth_config import load_synth_config
+from supportnet.cli.cmd_online import run_online, true_extrinsics
+from supportnet.cli.cmd_synth import parse_drift
+
+
+def test_departure_and_extrinsic_are_inverses():
+    rng = np.random.default_rng(0)
+    T_file = np.eye(4)
+    T_file[:3, 3] = rng.normal(size=3)
+    x = np.array([0.02, -0.01, 0.03, 0.01, -0.02, 0.005])
+    assert np.allclose(departure(extrinsic_of(x, T_file), T_file), x)
+
+
+def test_the_filter_follows_consistent_windows_and_grows_confident():
+    config = OnlineConfig(initial_std=(10.0, 2.0), process_std=(0.1, 0.01), measurement_floor=(1.0, 0.05))
+    state = OnlineState.start(np.eye(4), np.eye(4), config)
+    z = np.array([0.05, 0, 0, 0, np.radians(1.0), 0])  # 5 cm and 1° away from the file, every window
+    first_std = None
+    for _ in range(8):
+        state.update(z, np.eye(6) * 1e-6)
+        first_std = first_std or state.std
+    assert np.allclose(state.x, z, atol=2e-3) and state.std[0] < first_std[0]
+    assert state.drift  # 5 cm / 1° is beyond 3σ and beyond the minimum size
+    still = OnlineState.start(np.eye(4), np.eye(4), config)
+    still.update(np.zeros(6), np.eye(6) * 1e-6)
+    assert not still.drift
+
+
+def test_synthetic_drift_is_exact_and_recorded(tmp_path):
+    synth = Synthesizer(load_synth_config("urban"), 5, seed=3, drift=(4.0, 1.0))
+    assert calibration_error(synth.extrinsic(4), synth.T_cam_lidar).translation_cm == pytest.approx(4.0)
+    assert calibration_error(synth.extrinsic(2), synth.T_cam_lidar).rotation_deg == pytest.approx(0.5)
+    assert np.allclose(synth.extrinsic(0), synth.T_cam_lidar)
+    write_sequence(synth, tmp_path, "00")
+    truth = true_extrinsics(tmp_path, "00")
+    assert truth.shape == (5, 4, 4) and np.allclose(truth[4], synth.extrinsic(4))
+    assert json.loads((tmp_path / "sequences" / "00" / "meta.json").read_text())["drift_cm_deg"] == [4.0, 1.0]
+    assert parse_drift("5,1") == (5.0, 1.0) and parse_drift(None) == (0.0, 0.0)
+    with pytest.raises(DataError, match="is not CM,DEG"):
+        parse_drift("5")
+
+
+def test_online_calibration_tracks_an_injected_drift(tmp_path):
+    write_sequence(Synthesizer(load_synth_config("urban"), 40, seed=5, drift=(2.0, 2.0)), tmp_path, "00")
+    config = load_calibrate_config().model_copy(update={"online": OnlineConfig(window=10, step=10)})
+    out = run_online(tmp_path, "00", "uniform", "perturb:0,0", tmp_path / "online", config)
+    first, last = out["windows"][0], out["windows"][-1]
+    assert len(out["windows"]) == 4
+    # the mount turned 2° by the end: the file is off by most of it, the running estimate is not
+    assert last["error_of_file"]["rotation_deg"] > 1.5
+    assert last["error"]["rotation_deg"] < 0.5 * last["error_of_file"]["rotation_deg"]
+    assert not first["drift"] and last["drift"] and out["first_drift_window"] >= 1
+    rows = list(csv.DictReader((tmp_path / "online" / "estimates.csv").open()))
+    assert len(rows) == 4 and rows[-1]["drift"] == "1"
+    assert (tmp_path / "online" / "parameters.png").is_file()
+    with pytest.raises(DataError, match="one support"):
+        run_online(tmp_path, "00", "uniform,onnx", "perturb:0,0", tmp_path / "o2", config)
+
+
+def test_synth_writes_the_same_frames_as_a_ros_bag(tmp_path):
+    from calib.data import open_dataset
+    from supportnet.cli.cmd_synth import run_synth
+
+    bag = run_synth("urban", 3, 2, tmp_path, "00", drift=(2.0, 1.0), fmt="bag", workers=1)
+    kitti = run_synth("urban", 3, 2, tmp_path / "kitti", "00", drift=(2.0, 1.0), workers=1)
+    assert bag == tmp_path / "00_bag" and (bag / "metadata.yaml").is_file()
+    with open_dataset(bag) as from_bag, open_dataset(kitti.parent.parent, sequence="00") as from_kitti:
+        assert len(from_bag) == 3
+        assert np.allclose(from_bag.calibration.T_cam_lidar, from_kitti.calibration.T_cam_lidar, atol=1e-6)
+        assert np.array_equal(from_bag[2].image, from_kitti[2].image)
+        assert np.allclose(from_bag[2].points[:, :3], from_kitti[2].points[:, :3], atol=1e-4)
+    assert np.allclose(true_extrinsics(bag, None), true_extrinsics(kitti.parent.parent, "00"))
+    with pytest.raises(DataError, match="is not kitti or bag"):
+        run_synth("urban", 3, 2, tmp_path / "x", "00", fmt="mcap")

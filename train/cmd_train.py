@@ -1,0 +1,56 @@
+"""``supportnet train`` and ``supportnet train-flow``: registered with the ``supportnet`` command
+line through the ``supportnet.commands`` entry point (``pyproject.toml``), so the CLI never
+imports ``train`` (imports go one way: ``calib`` ← ``supportnet`` ← ``train``). Heavy modules are
+imported inside each command."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from supportnet.cli.options import Overwrite
+
+__all__ = ["register"]
+
+
+def train(
+    config: Annotated[
+        Path | None, typer.Option(help="Training config (default: the packaged train.yaml).")
+    ] = None,
+    overrides: Annotated[
+        list[str] | None,
+        typer.Argument(help="key.sub=value overrides, e.g. trainer.max_epochs=5 data.batch_size=16."),
+    ] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Train the support predictor (Lightning) on offline maps: checkpoints, logs, learning curves."""
+    from train.fit import run_train
+    from train.train_config import load_train_config
+
+    run_train(load_train_config(config, overrides or []), overwrite)
+
+
+def train_flow(
+    config: Annotated[
+        Path | None, typer.Option(help="Training config (default: the packaged train_flow.yaml).")
+    ] = None,
+    overrides: Annotated[
+        list[str] | None,
+        typer.Argument(help="key.sub=value overrides, e.g. trainer.max_epochs=5 model.iterations=4."),
+    ] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Train the learned flow matcher (Lightning) on calibrated sequences: random extrinsic errors
+    and the flow they cause; checkpoints, logs, learning curves."""
+    from train.fit import run_train_flow
+    from train.train_config import FlowTrainConfig, load_train_config
+
+    run_train_flow(load_train_config(config, overrides or [], FlowTrainConfig), overwrite)
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``train`` and ``train-flow`` to ``app``."""
+    app.command()(train)
+    app.command("train-flow")(train_flow)

@@ -1,0 +1,108 @@
+"""``SupportModule``: the Lightning training system around :class:`SupportUNet`.
+
+Loss: binary cross-entropy of the logits against the offline map, weighted by the coverage (no
+LiDAR there means no target there). Validation: weighted MAE, Pearson r and Spearman ρ on whole
+held-out frames (:func:`supportnet.nets.map_targets.agreement_scores`).
+"""
+
+from __future__ import annotations
+
+import kornia.augmentation as KA
+import lightning as L
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from supportnet.nets.map_targets import agreement_scores
+from supportnet.nets.support_unet import ModelConfig, SupportUNet
+from train.train_config import AugmentConfig, OptimConfig
+
+__all__ = ["SupportModule", "one_cycle", "photometric", "weighted_bce"]
+
+VAL_PIXELS_PER_FRAME = 20_000
+"""Validation keeps at most this many weighted pixels per frame (a fixed subsample) for ρ."""
+
+
+def weighted_bce(logits: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``Σ w · BCE(σ(logits), target) / Σ w`` over all pixels; 0 when no pixel has weight."""
+    loss = F.binary_cross_entropy_with_logits(logits, target, reduction="none")
+    return (weight * loss).sum() / weight.sum().clamp_min(1e-6)
+
+
+class SupportModule(L.LightningModule):
+    """Trains a :class:`SupportUNet` on offline support maps.
+
+    Args:
+        model: network config. optim: learning rate and weight decay. augment: probabilities.
+        target: which offline map is learned (stored in the exported contract).
+    """
+
+    def __init__(self, model: dict, optim: dict, augment: dict, target: str = "agreement") -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.net = SupportUNet(ModelConfig(**model))
+        self.optim_config = OptimConfig(**optim)
+        self.contract = self.net.contract(target)
+        aug = AugmentConfig(**augment)
+        # geometric: image, target and weight stacked, so they move together
+        self.geometric = KA.AugmentationSequential(
+            KA.RandomHorizontalFlip(p=aug.flip),
+            KA.RandomAffine(degrees=3.0, translate=(0.05, 0.05), scale=(0.9, 1.1), p=aug.affine),
+        )
+        self.photometric = photometric(aug.colour, aug.blur)  # the image only
+        self.register_buffer("mean", torch.tensor(self.contract.mean).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(self.contract.std).view(1, 3, 1, 1), persistent=False)
+        self._val: list[np.ndarray] = []
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        """``(B, 3, H, W)`` RGB in [0, 1] → ``(B, 1, H, W)`` logits (normalised per the contract)."""
+        return self.net((image - self.mean) / self.std)
+
+    def on_after_batch_transfer(self, batch: dict, dataloader_idx: int) -> dict:
+        if not self.training:
+            return batch
+        stacked = self.geometric(torch.cat([batch["image"], batch["target"], batch["weight"]], dim=1))
+        image, target, weight = stacked[:, :3], stacked[:, 3:4], stacked[:, 4:5]
+        return {"image": self.photometric(image.clamp(0, 1)), "target": target.clamp(0, 1), "weight": weight}
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        loss = weighted_bce(self(batch["image"]), batch["target"], batch["weight"])
+        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True)
+        return loss
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        logits = self(batch["image"])
+        self.log("val/loss", weighted_bce(logits, batch["target"], batch["weight"]), on_epoch=True)
+        pred, target, weight = (
+            t.flatten().cpu().numpy() for t in (logits.sigmoid(), batch["target"], batch["weight"])
+        )
+        keep = np.flatnonzero(weight > 0)
+        keep = np.random.default_rng(batch_idx).permutation(keep)[:VAL_PIXELS_PER_FRAME]
+        self._val.append(np.stack([pred[keep], target[keep], weight[keep]]))
+
+    def on_validation_epoch_end(self) -> None:
+        if not self._val:
+            return
+        pred, target, weight = np.concatenate(self._val, axis=1)
+        self._val.clear()
+        scores = agreement_scores(pred, target, weight)
+        for name in ("mae", "pearson", "spearman"):
+            self.log(f"val/{name}", float(np.nan_to_num(scores[name])), prog_bar=name == "pearson")
+
+    def configure_optimizers(self) -> dict:
+        return one_cycle(self, self.optim_config)
+
+
+def photometric(colour: float, blur: float) -> KA.AugmentationSequential:
+    """Colour jitter and blur with these probabilities, for the RGB image only."""
+    return KA.AugmentationSequential(
+        KA.ColorJitter(0.3, 0.3, 0.3, 0.03, p=colour), KA.RandomGaussianBlur((5, 5), (0.1, 1.5), p=blur)
+    )
+
+
+def one_cycle(module: L.LightningModule, config: OptimConfig) -> dict:
+    """AdamW under a one-cycle schedule over the whole run, stepped per batch."""
+    optimizer = torch.optim.AdamW(module.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    steps = module.trainer.estimated_stepping_batches
+    scheduler = torch.optim.lr_scheduler.OneCycleLR(optimizer, config.lr, total_steps=steps)
+    return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
