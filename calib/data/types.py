@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import abc
+import hashlib
 from collections.abc import Callable, Iterator
 from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field
@@ -148,6 +149,19 @@ class Sequence(abc.ABC, SequenceABC):
 
     def __iter__(self) -> Iterator[Frame]:
         return (self.frame(i) for i in range(len(self)))
+
+    def fingerprint(self) -> str:
+        """A short hex digest that tells this dataset from another: layout, name, frame count,
+        camera times and calibration. Maps, predictions and checkpoints carry it, and are refused
+        for a sequence with another one."""
+        digest = hashlib.sha256()
+        for part in (self.layout, self.name, str(len(self))):
+            digest.update(part.encode() + b"\0")
+        digest.update(np.ascontiguousarray(self.timestamps, np.float64).tobytes())
+        digest.update(np.ascontiguousarray(self.calibration.K, np.float64).tobytes())
+        if self.calibration.T_cam_lidar is not None:
+            digest.update(np.ascontiguousarray(self.calibration.T_cam_lidar, np.float64).tobytes())
+        return digest.hexdigest()[:16]
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release open handles (bags); file layouts hold none."""
