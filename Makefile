@@ -3,7 +3,7 @@ PY      := .venv/bin/python
 STAMP   := .venv/.installed
 TORCH   := torch==2.13.0
 
-.PHONY: demo test test-all bench lint clean model flow-model
+.PHONY: demo test test-all bench report lint clean model flow-model
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -22,6 +22,7 @@ test: $(STAMP)
 test-all: $(STAMP)
 	$(PY) -m pytest -q -m ''
 
+# Speed and accuracy benchmarks: JSON and RESULTS.md under benchmarks/results/, nothing else.
 bench: $(STAMP)
 	$(PY) benchmarks/bench_synth.py
 	$(PY) benchmarks/bench_matcher.py
@@ -31,6 +32,11 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_flow_matcher.py
 	$(PY) benchmarks/bench_accuracy.py
 	$(PY) benchmarks/report.py
+
+# The README's results tables, from what `make bench` left in benchmarks/results/ (bench never
+# touches README.md).
+report: $(STAMP)
+	$(PY) benchmarks/report.py --readme README.md
 
 lint: $(STAMP)
 	.venv/bin/ruff check calib supportnet train export tests benchmarks

@@ -8,7 +8,7 @@ from typing import TypeVar
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from calib.errors import DataError
+from calib.errors import ConfigError
 
 __all__ = ["DEFAULTS", "load_config", "read_yaml", "validate"]
 
@@ -23,33 +23,51 @@ def read_yaml(path: Path) -> dict:
     """The mapping in a YAML file (empty file: ``{}``).
 
     Raises:
-        DataError: the file is missing, does not parse, or is not a mapping.
+        ConfigError: the file is missing, is not UTF-8 text, does not parse, or is not a mapping.
     """
     path = Path(path)
     if not path.is_file():
-        raise DataError(path, "file not found")
+        raise ConfigError(path, "file not found")
+    raw = path.read_bytes()
     try:
-        data = yaml.safe_load(path.read_text())
+        text = raw.decode("utf-8-sig")  # a byte-order mark is fine
+    except UnicodeDecodeError as exc:
+        raise ConfigError(path, f"not UTF-8 text (byte {exc.start}: {raw[exc.start]:#04x})") from None
+    if "\0" in text:
+        raise ConfigError(path, "not UTF-8 text (a binary file: it holds NUL bytes)")
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise DataError(path, f"not valid YAML ({str(exc).splitlines()[0]})") from None
+        raise ConfigError(path, f"not valid YAML ({str(exc).splitlines()[0]})") from None
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise DataError(path, "expected a mapping at the top level")
+        raise ConfigError(path, "expected a mapping at the top level")
     return data
 
 
 def validate(model: type[Model], data: dict, path: Path) -> Model:
-    """``model`` validated from ``data``; every problem named with its key path, in one line.
+    """``model`` validated from ``data``; every problem named with its key path (and the value
+    given), in one line.
 
     Raises:
-        DataError: naming ``path`` and each offending key.
+        ConfigError: naming ``path`` and each offending key.
     """
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'file'}: {e['msg']}" for e in exc.errors())
-        raise DataError(path, problems) from None
+        problems = "; ".join(
+            f"{'.'.join(map(str, e['loc'])) or 'file'}: {e['msg']}{_given(e)}" for e in exc.errors()
+        )
+        raise ConfigError(path, problems) from None
+
+
+def _given(error: dict) -> str:
+    """`` (got VALUE)`` for a scalar value that failed (``.inf``, ``-1``), else nothing."""
+    value = error.get("input")
+    if error["type"] == "missing" or not isinstance(value, int | float | str) or len(repr(value)) > 40:
+        return ""
+    return f" (got {value!r})"
 
 
 def load_config(model: type[Model], path: Path | None, default: str) -> Model:

@@ -16,7 +16,7 @@ __all__ = ["register"]
 def export(
     ckpt: Annotated[Path, typer.Option(help="Checkpoint of `supportnet train` or `train-flow`.")],
     out: Annotated[Path, typer.Option(help="ONNX file to write.")],
-    opset: Annotated[int, typer.Option(help="ONNX opset (17 or newer).")] = 17,
+    opset: Annotated[int, typer.Option(help="ONNX opset, 17 to 20 (what torch's exporter supports).")] = 17,
     overwrite: Overwrite = False,
 ) -> None:
     """Export to ONNX and verify it: onnx.checker, onnxruntime against torch on another shape,

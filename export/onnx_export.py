@@ -9,8 +9,6 @@ and the metadata read back the way the run-time classes read it.
 
 from __future__ import annotations
 
-import os
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -19,17 +17,31 @@ import onnx
 import torch
 from torch import nn
 
-from calib.errors import DataError, NumericalError
+from calib.errors import ConfigError, DataError, NumericalError
+from supportnet.cli.output_dir import claim_output, temp_path
 from supportnet.nets.contract import METADATA_KEY, Contract
 from supportnet.nets.flow_net import LIDAR_CHANNELS, FlowConfig, FlowNet
 from supportnet.nets.support_unet import ModelConfig, SupportUNet
 from supportnet.runtime.support_predictor import open_model
 
-__all__ = ["export_network", "export_onnx", "load_checkpoint"]
+__all__ = ["OPSETS", "check_opset", "export_network", "export_onnx", "load_checkpoint"]
 
 EXPORT_SIZE = (128, 320)
 CHECK_SHAPE = (2, 3, 97, 203)
 """Parity is checked on this shape: another batch, and sizes that are not multiples of the stride."""
+OPSETS = range(17, 21)
+"""ONNX opsets an export may ask for: from 17 (the oldest the networks are checked with) to 20, the
+newest torch's TorchScript exporter (``dynamo=False``, used here) supports."""
+
+
+def check_opset(opset: int) -> int:
+    """``opset`` when it is in :data:`OPSETS`; else a one-line ConfigError naming the range."""
+    if opset not in OPSETS:
+        raise ConfigError(
+            "--opset",
+            f"must be from {OPSETS[0]} to {OPSETS[-1]} (what torch's ONNX exporter supports), got {opset}",
+        )
+    return opset
 
 
 def load_checkpoint(ckpt: Path) -> tuple[nn.Module, Contract]:
@@ -64,12 +76,11 @@ def export_onnx(
 
     Raises:
         DataError: ``out`` exists (without ``overwrite``) or the checkpoint is unusable.
+        ConfigError: ``opset`` is not in :data:`OPSETS`.
         NumericalError: onnxruntime and torch disagree by more than ``tolerance``.
     """
-    if Path(out).exists() and not overwrite:
-        raise DataError(out, "already exists; pass --overwrite to replace it")
-    if opset < 17:
-        raise DataError("--opset", f"must be 17 or newer, got {opset}")
+    check_opset(opset)
+    claim_output(Path(out), overwrite, [ckpt], file=True)
     net, contract = load_checkpoint(ckpt)
     return export_network(net, contract, Path(out), opset, tolerance, {"source_checkpoint": str(ckpt)})
 
@@ -90,6 +101,7 @@ def export_network(
 ) -> dict:
     """Export a support predictor or a flow matcher (eval mode; ``contract.output`` says which) with
     ``contract`` in its metadata, check it, write ``out``."""
+    check_opset(opset)
     rng = np.random.default_rng(0)
     images = rng.integers(0, 256, (CHECK_SHAPE[0], *CHECK_SHAPE[2:], 3), dtype=np.uint8)
     check = {"image": contract.preprocess(images)}
@@ -113,9 +125,7 @@ def _export(
     onnxruntime with torch on ``check``."""
     net = net.eval()
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".onnx", dir=out.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    tmp = temp_path(out)  # written with the umask's mode, removed on failure (or by a later run)
     names = list(check)
     try:
         with warnings.catch_warnings():
@@ -147,7 +157,6 @@ def _export(
                 f"onnxruntime and torch disagree on {CHECK_SHAPE}: shapes {actual.shape}/{expected.shape}, "
                 f"max abs diff {diff:.2e} > {tolerance:.0e}"
             )
-        tmp.chmod(0o644)  # mkstemp made it private
         tmp.replace(out)
     finally:
         tmp.unlink(missing_ok=True)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import os
-import shutil
 import time
 import warnings
 from pathlib import Path
@@ -21,8 +20,16 @@ from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
 from rich.console import Console
 
-from calib.errors import DataError
-from supportnet.cli.output_dir import resolved_config, write_json
+from supportnet.cli.console import make_console
+from supportnet.cli.output_dir import (
+    claim_output,
+    claim_partial,
+    removed_on_failure,
+    replace_atomically,
+    resolved_config,
+    write_json,
+    write_marker,
+)
 from supportnet.report.pictures import learning_curves
 from train.support_data import SupportDataModule
 from train.support_module import SupportModule
@@ -47,14 +54,17 @@ logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_NoAdverts(
 
 def run_train(config: TrainConfig, overwrite: bool = False, console: Console | None = None) -> dict:
     """Train the support predictor; returns ``summary.json``'s content (with ``best_checkpoint``)."""
+    claim_output(Path(config.out), overwrite, _inputs(config))
     module = SupportModule(
         config.model.model_dump(), config.optim.model_dump(), config.augment.model_dump(), config.data.target
     )
-    return _fit(config, SupportDataModule(config.data), module, "val/pearson", "max", overwrite, console)
+    with removed_on_failure(_partial(config)):
+        return _fit(config, SupportDataModule(config.data), module, "val/pearson", "max", overwrite, console)
 
 
 def run_train_flow(config: FlowTrainConfig, overwrite: bool = False, console: Console | None = None) -> dict:
     """Train the flow matcher; returns ``summary.json``'s content (with ``best_checkpoint``)."""
+    claim_output(Path(config.out), overwrite, _inputs(config))
     from train.flow_data import FlowDataModule
     from train.flow_module import FlowModule
 
@@ -66,7 +76,18 @@ def run_train_flow(config: FlowTrainConfig, overwrite: bool = False, console: Co
         config.data.near_m,
         config.data.working_focal_px,
     )
-    return _fit(config, FlowDataModule(config.data), module, "val/epe", "min", overwrite, console)
+    with removed_on_failure(_partial(config)):
+        return _fit(config, FlowDataModule(config.data), module, "val/epe", "min", overwrite, console)
+
+
+def _inputs(config: TrainConfig | FlowTrainConfig) -> list[Path]:
+    """What training reads (the datasets and maps): ``--out`` must not be, hold or replace them."""
+    return [p for s in config.data.sources for p in (s.data, getattr(s, "maps", None)) if p is not None]
+
+
+def _partial(config: TrainConfig | FlowTrainConfig) -> Path:
+    out = Path(config.out)
+    return out.with_name(out.name + ".partial")
 
 
 def _fit(
@@ -80,13 +101,13 @@ def _fit(
 ) -> dict:
     """The training run both share: output folder, seeding, checkpoints on ``monitor``, early
     stopping, logs, curves and the summary."""
-    console = console or Console(stderr=True)
-    out = Path(config.out)
-    if out.exists() and not overwrite:
-        raise DataError(out, "already exists; pass --overwrite to replace it")
-    partial = out.with_name(out.name + ".partial")
-    shutil.rmtree(partial, ignore_errors=True)
-    partial.mkdir(parents=True)
+    console = console or make_console()
+    out, partial = Path(config.out), _partial(config)
+    claim_output(out, overwrite, _inputs(config))
+    if os.environ.get("LOCAL_RANK", "0") == "0":  # DDP's child processes share rank 0's folder
+        claim_partial(partial, resume=False)  # a killed run's is removed, another's refused
+        partial.mkdir(parents=True)
+        write_marker(partial, "train")
     (partial / "config.yaml").write_text(resolved_config(config))
     L.seed_everything(config.seed, workers=True, verbose=False)
     if config.trainer.threads:
@@ -128,9 +149,8 @@ def _fit(
     if metrics.is_file():
         learning_curves(metrics, partial / "learning_curves.png")
     write_json(partial / "summary.json", summary)
-    if out.exists():
-        shutil.rmtree(out)
-    os.replace(partial, out)
+    claim_output(out, overwrite, _inputs(config))
+    replace_atomically([(partial, out)])
     score = summary[key] if summary[key] is not None else float("nan")
     console.print(
         f"trained {summary['epochs']} epochs in {minutes:.1f} min; best {monitor} {score:.3f}; "

@@ -50,7 +50,7 @@ class ScanFrames:
 def load_scans(source: SequenceSource, stride: int, focal_px: float) -> ScanFrames:
     """Every ``stride``-th frame of one sequence, which must carry a reference calibration."""
     images, points, labels, Ks, Ts = [], [], [], [], []
-    with open_dataset(source.data, sequence=source.sequence) as seq:
+    with open_dataset(source.data, sequence=source.sequence, camera=source.camera) as seq:
         if seq.calibration.T_cam_lidar is None:
             raise DataError(source.data, "has no reference calibration to learn the flow from")
         for i in range(0, len(seq), stride):

@@ -34,6 +34,7 @@ from export.onnx_export import export_onnx
 from supportnet.cli.cmd_maps import run_maps
 from supportnet.cli.cmd_predict import run_predict
 from supportnet.cli.cmd_synth import run_synth
+from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import write_json
 from supportnet.runtime.flow_matcher import SHIPPED_FLOW_MODEL
 from supportnet.runtime.support_predictor import SHIPPED_MODEL
@@ -98,7 +99,7 @@ def make_model(
     ),
 ) -> None:
     """The support predictor."""
-    console = Console(stderr=True)
+    console = make_console()
     start = time.perf_counter()
     _synthesise(frames, console, maps=True)
     train_config = load_train_config(config)
@@ -126,7 +127,7 @@ def make_flow_model(
     ),
 ) -> None:
     """The flow matcher."""
-    console = Console(stderr=True)
+    console = make_console()
     start = time.perf_counter()
     _synthesise(frames, console, maps=False)
     train_config = load_train_config(config, [], FlowTrainConfig)

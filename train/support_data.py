@@ -1,5 +1,8 @@
 """The support predictor's data: RGB frames and their Stage 3 per-frame maps, split by sequence.
 
+Maps are refused unless made from the same dataset (``summary.json``'s fingerprint); the
+sequences and their fingerprints are saved in every checkpoint (:meth:`SupportDataModule.state_dict`).
+
 Everything is loaded into memory once (a few hundred frames of 624x188 fit easily); training
 draws random crops, validation uses whole frames. Augmentation runs on the batch in
 :class:`train.support_module.SupportModule` (kornia), so it runs on the accelerator too.
@@ -17,6 +20,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from calib.data import open_dataset
 from calib.errors import DataError
+from calib.support.map_files import check_maps_fingerprint, dataset_identity, load_frame_maps
 from supportnet.nets.map_targets import offline_target
 from train.train_config import DataConfig, Source
 
@@ -31,11 +35,14 @@ class FrameTargets:
         images: ``(N, H, W, 3)`` uint8 RGB.
         target: ``(N, H, W)`` float32 in [0, 1].
         weight: ``(N, H, W)`` float32 loss weight (0: no LiDAR evidence there).
+        sources: per sequence: its data, sequence, camera, maps folder and dataset fingerprint
+            (what checkpoints record, see :meth:`SupportDataModule.state_dict`).
     """
 
     images: np.ndarray
     target: np.ndarray
     weight: np.ndarray
+    sources: tuple[dict, ...] = ()
 
     def __len__(self) -> int:
         return len(self.images)
@@ -43,20 +50,29 @@ class FrameTargets:
 
 def load_source(source: Source, config: DataConfig) -> FrameTargets:
     """Every ``frame_stride``-th (validation: ``val_frame_stride``-th) frame of one sequence with
-    its targets."""
-    maps = Path(source.maps) / "frames"
-    if not maps.is_dir():
-        raise DataError(maps, "not found; make per-frame maps with `supportnet maps`")
+    its targets.
+
+    Raises:
+        DataError: maps made from another dataset (their fingerprint differs) or without a
+            fingerprint, missing frames, unreadable map files, maps and images of other sizes.
+    """
+    maps = Path(source.maps)
     images, targets, weights = [], [], []
-    with open_dataset(source.data, sequence=source.sequence) as seq:
+    with open_dataset(source.data, sequence=source.sequence, camera=source.camera) as seq:
+        check_maps_fingerprint(maps, seq)
+        identity = {
+            "data": str(source.data),
+            "sequence": source.sequence,
+            "maps": str(maps),
+            "split": source.split,
+            **dataset_identity(seq),
+        }
         stride = config.frame_stride if source.split == "train" else config.val_frame_stride
         for i in range(0, len(seq), stride):
-            path = maps / f"{i:06d}.npz"
-            if not path.is_file():
-                raise DataError(path, f"missing: the maps do not cover frame {i} of {seq.name}")
-            stored = np.load(path)
+            stored = load_frame_maps(maps, i)
             image = seq[i].image
             if stored["raw"].shape != image.shape[:2]:
+                path = maps / "frames" / f"{i:06d}.npz"
                 raise DataError(path, f"map is {stored['raw'].shape}, the image {image.shape[:2]}")
             target, weight = offline_target(
                 stored["raw"], stored["coverage"], config.target, config.min_coverage, config.weight_cap
@@ -66,7 +82,7 @@ def load_source(source: Source, config: DataConfig) -> FrameTargets:
             weights.append(weight)
     if not images:
         raise DataError(source.data, "holds no frames")
-    return FrameTargets(np.stack(images), np.stack(targets), np.stack(weights))
+    return FrameTargets(np.stack(images), np.stack(targets), np.stack(weights), (identity,))
 
 
 def _concat(parts: list[FrameTargets]) -> FrameTargets:
@@ -74,7 +90,8 @@ def _concat(parts: list[FrameTargets]) -> FrameTargets:
     if len(shapes) > 1:
         raise DataError("data.sources", f"one split mixes image sizes {sorted(shapes)}")
     return FrameTargets(
-        *(np.concatenate([getattr(p, k) for p in parts]) for k in ("images", "target", "weight"))
+        *(np.concatenate([getattr(p, k) for p in parts]) for k in ("images", "target", "weight")),
+        sources=tuple(s for p in parts for s in p.sources),
     )
 
 
@@ -136,6 +153,16 @@ class SupportDataModule(L.LightningDataModule):
         H, W = self.train.images.shape[1:3]
         if self.config.crop[0] > H or self.config.crop[1] > W:
             raise DataError("data.crop", f"{self.config.crop} is larger than the images ({H}, {W})")
+
+    @property
+    def sources(self) -> list[dict]:
+        """Each training and validation sequence with its dataset fingerprint (after setup)."""
+        return [s for part in (self.train, self.val) if part is not None for s in part.sources]
+
+    def state_dict(self) -> dict:
+        """Saved by Lightning in every checkpoint (under ``SupportDataModule``): the sequences and
+        their dataset fingerprints, so a checkpoint says what data it learned from."""
+        return {"sources": self.sources}
 
     def train_dataloader(self) -> DataLoader:
         data = _RandomCrops(self.train, self.config.crop, self.config.samples_per_epoch)

@@ -7,9 +7,10 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveInt
 
-from calib.errors import DataError
+from calib.errors import ConfigError
+from calib.seeds import SEED_LIMIT
 from calib.yaml_io import read_yaml, validate
 from supportnet.nets.flow_net import FlowConfig
 from supportnet.nets.support_unet import ModelConfig
@@ -18,7 +19,7 @@ __all__ = ["FlowTrainConfig", "TrainConfig", "load_train_config"]
 
 
 class _Group(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class SequenceSource(_Group):
@@ -26,6 +27,7 @@ class SequenceSource(_Group):
 
     data: Path
     sequence: str | None = None
+    camera: str | None = Field(None, description="camera where the data has several (KITTI index, bag topic)")
     split: Literal["train", "val"]
 
 
@@ -46,7 +48,7 @@ class DataConfig(_Group):
     weight_cap: float = Field(4.0, gt=0, description="the loss weight is the coverage, capped here")
     frame_stride: int = Field(1, ge=1, description="train on every k-th frame (neighbours are alike)")
     val_frame_stride: int = Field(4, ge=1, description="validate on every k-th held-out frame")
-    crop: tuple[int, int] = Field((128, 320), description="training crop (H, W)")
+    crop: tuple[PositiveInt, PositiveInt] = Field((128, 320), description="training crop (H, W)")
     batch_size: int = Field(8, ge=1)
     samples_per_epoch: int = Field(960, ge=1, description="random crops per training epoch")
     workers: int = Field(0, ge=0)
@@ -82,7 +84,7 @@ class TrainerConfig(_Group):
 
 
 class TrainConfig(_Group):
-    seed: int = 0
+    seed: int = Field(0, ge=0, lt=SEED_LIMIT, description="an integer in [0, 2^32)")
     out: Path = Field(Path("runs/support"), description="checkpoints, logs and curves go here")
     data: DataConfig
     model: ModelConfig = ModelConfig()
@@ -96,16 +98,16 @@ class PerturbationConfig(_Group):
     a curriculum from ``start`` (first epoch) to ``end`` (last), each draw uniform up to the
     epoch's bound; validation uses fixed draws of exactly ``val`` (Stage 4's default start)."""
 
-    start: tuple[float, float] = (20.0, 3.0)
-    end: tuple[float, float] = (5.0, 1.0)
-    val: tuple[float, float] = (10.0, 2.0)
+    start: tuple[NonNegativeFloat, NonNegativeFloat] = (20.0, 3.0)
+    end: tuple[NonNegativeFloat, NonNegativeFloat] = (5.0, 1.0)
+    val: tuple[NonNegativeFloat, NonNegativeFloat] = (10.0, 2.0)
 
 
 class FlowDataConfig(_Group):
     sources: list[SequenceSource] = Field(min_length=2, description="split by sequence")
     frame_stride: int = Field(2, ge=1, description="train on every k-th frame")
     val_frame_stride: int = Field(8, ge=1, description="validate on every k-th held-out frame")
-    crop: tuple[int, int] = Field((128, 320), description="training crop (H, W)")
+    crop: tuple[PositiveInt, PositiveInt] = Field((128, 320), description="training crop (H, W)")
     batch_size: int = Field(4, ge=1)
     samples_per_epoch: int = Field(640, ge=1)
     workers: int = Field(0, ge=0)
@@ -121,7 +123,7 @@ class FlowAugmentConfig(_Group):
 
 
 class FlowTrainConfig(_Group):
-    seed: int = 0
+    seed: int = Field(0, ge=0, lt=SEED_LIMIT, description="an integer in [0, 2^32)")
     out: Path = Field(Path("runs/flow"), description="checkpoints, logs and curves go here")
     data: FlowDataConfig
     model: FlowConfig = FlowConfig()
@@ -136,7 +138,7 @@ def _set(tree: dict, dotted: str, value: object) -> None:
     for key in parents:
         child = tree.setdefault(key, {})
         if not isinstance(child, dict):
-            raise DataError("override", f"{dotted}: {key} is not a group")
+            raise ConfigError("override", f"{dotted}: {key} is not a group")
         tree = child
     tree[leaf] = value
 
@@ -156,6 +158,6 @@ def load_train_config(
     for item in overrides:
         key, sep, text = item.partition("=")
         if not sep or not key:
-            raise DataError("override", f"{item!r} is not key.sub=value")
+            raise ConfigError("override", f"{item!r} is not key.sub=value")
         _set(data, key.strip(), yaml.safe_load(text))
     return validate(schema, data, path)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from calib.data.custom import is_custom, read_custom
@@ -9,7 +10,7 @@ from calib.data.kitti_object import is_kitti_object, read_kitti_object
 from calib.data.kitti_odometry import is_kitti_odometry, read_kitti_odometry
 from calib.data.kitti_raw import is_kitti_raw, read_kitti_raw
 from calib.data.rosbag import BagSequence, BagTopics, is_bag
-from calib.data.types import Calibration, Frame, Sequence
+from calib.data.types import Calibration, Frame, Sequence, refuse_sequence
 from calib.errors import DataError
 
 __all__ = ["LAYOUTS", "Calibration", "Frame", "Sequence", "detect_layout", "open_dataset"]
@@ -43,8 +44,8 @@ def detect_layout(path: Path) -> str:
 def open_dataset(
     path: Path | str,
     sequence: str | None = None,
+    camera: int | str | None = None,
     *,
-    camera: int = 2,
     strict: bool = True,
     topics: BagTopics = BagTopics(),
     max_gap: float = 0.05,
@@ -53,27 +54,45 @@ def open_dataset(
 
     Args:
         path: dataset folder or bag.
-        sequence: which sequence (KITTI odometry) or drive (KITTI raw) where the path holds several.
-        camera: KITTI camera index (2 = left colour).
-        strict: raise on the first listed problem (unpaired files, empty or truncated scans);
-            ``info`` passes ``False`` to report them all instead.
-        topics, max_gap: ROS bag topic choice and pairing tolerance in seconds.
+        sequence: which sequence (KITTI odometry) or drive (KITTI raw) where the path holds
+            several. Layouts holding one sequence (KITTI object, custom, a bag) refuse it.
+        camera: which camera where the layout has several: a KITTI index (``2``, ``"2"``,
+            ``"image_02"``) or a bag's image topic (``"/cam_left/image_raw"``). ``None``: the
+            layout's default (KITTI camera 2, or the only one present; a bag's only image topic).
+            One that is not there is refused with a line listing those that are. The custom
+            layout has one camera and refuses it.
+        strict: raise on the first listed problem (unpaired files, empty or truncated scans,
+            NaN or non-increasing time stamps, NaN poses); ``info`` passes ``False`` to report
+            them all instead.
+        topics, max_gap: ROS bag topic choice and pairing tolerance in seconds (``camera``
+            overrides ``topics.image``).
     """
     path = Path(path)
     layout = detect_layout(path)
     if layout == "rosbag":
+        refuse_sequence(path, sequence, "a ROS bag")
+        if camera is not None:
+            topics = replace(topics, image=str(camera))
         seq: Sequence = BagSequence(path, topics=topics, max_gap=max_gap)
     elif layout == "kitti_odometry":
         seq = read_kitti_odometry(path, sequence, camera=camera)
     elif layout == "kitti_raw":
         seq = read_kitti_raw(path, sequence, camera=camera)
     elif layout == "kitti_object":
+        refuse_sequence(path, sequence, "a KITTI object split")
         seq = read_kitti_object(path, camera=camera)
     else:
+        refuse_sequence(path, sequence, "a custom folder")
+        if camera is not None:
+            raise DataError(
+                path, f"a custom folder has one camera (camera/); leave out --camera (got {camera!r})"
+            )
         seq = read_custom(path)
     if strict and seq.problems:
+        seq.close()
         path_part, _, problem = seq.problems[0].partition(": ")
         raise DataError(path_part, problem)
     if len(seq) == 0:
+        seq.close()
         raise DataError(path, "holds no image–scan pairs")
     return seq

@@ -74,6 +74,9 @@ def _matrix(
 ) -> np.ndarray | None:
     if rows is None:
         return None
+    lengths = [len(r) for r in rows]
+    if len(set(lengths)) > 1:
+        raise DataError(path, f"{what} rows have different lengths ({', '.join(map(str, lengths))} numbers)")
     M = np.asarray(rows, dtype=np.float64)
     if M.shape != shape:
         raise DataError(path, f"{what} must be {shape[0]}x{shape[1]}, got shape {M.shape}")
@@ -85,7 +88,7 @@ def read_calibration_yaml(path: Path) -> Calibration:
     path = Path(path)
     spec = validate(CalibrationFile, read_yaml(path), path)
     return Calibration(
-        K=_matrix(spec.intrinsics().tolist(), (3, 3), "K", path),
+        K=_matrix(spec.K if spec.K is not None else spec.intrinsics().tolist(), (3, 3), "K", path),
         T_cam_lidar=_matrix(spec.T_cam_lidar, (4, 4), "T_cam_lidar", path),
         initial_T_cam_lidar=_matrix(spec.initial_extrinsic, (4, 4), "initial_extrinsic", path),
         distortion=None if spec.distortion is None else np.asarray(spec.distortion, dtype=np.float64),
@@ -112,7 +115,7 @@ def read_custom(path: Path) -> FileSequence:
     if not images and len(all_images) == len(all_scans) and all_images:
         images, scans, problems = all_images, all_scans, []
         notes.append("image and scan names differ; paired in sorted order")
-    times = paired_timestamps(path / "timestamps.txt", all_images, images, notes)
+    times = paired_timestamps(path / "timestamps.txt", all_images, images, notes, problems=problems)
     return FileSequence(
         name=path.name,
         layout="custom",

@@ -17,6 +17,7 @@ from calib.data.types import (
     Calibration,
     FileSequence,
     assumed_timestamps,
+    choose_kitti_camera,
     list_files,
     pair_by_stem,
     shift_from_projection,
@@ -40,7 +41,7 @@ def is_kitti_object(path: Path) -> bool:
 def read_kitti_object_calib(path: Path, camera: int = 2) -> Calibration:
     """One ``calib/NNNNNN.txt`` -> :class:`Calibration` of camera ``camera``."""
     values = read_kv_file(path)
-    K, T_camX_rect0 = shift_from_projection(kv_matrix(values, f"P{camera}", (3, 4), path))
+    K, T_camX_rect0 = shift_from_projection(kv_matrix(values, f"P{camera}", (3, 4), path), path, f"P{camera}")
     R0 = np.eye(4)
     R0[:3, :3] = kv_matrix(values, "R0_rect", (3, 3), path)
     Tr = np.eye(4)
@@ -48,11 +49,23 @@ def read_kitti_object_calib(path: Path, camera: int = 2) -> Calibration:
     return Calibration(K=K, T_cam_lidar=T_camX_rect0 @ R0 @ Tr, source=str(path))
 
 
-def read_kitti_object(path: Path, camera: int = 2) -> FileSequence:
-    """Read a KITTI object split (see the module docstring for the transform)."""
+def cameras(root: Path) -> list[int]:
+    """Indices of the ``image_N`` folders of a split."""
+    names = (p.name.removeprefix("image_") for p in root.glob("image_*") if p.is_dir())
+    return sorted(int(n) for n in names if n.isdigit())
+
+
+def read_kitti_object(path: Path, camera: int | str | None = None) -> FileSequence:
+    """Read a KITTI object split (see the module docstring for the transform).
+
+    Args:
+        camera: index of the ``image_N`` folder (``None``: 2, or the only camera present).
+    """
     root = _root(Path(path))
     if root is None:
         raise DataError(path, "not a KITTI object layout (no calib/ and velodyne/)")
+    notes: list[str] = []
+    camera = choose_kitti_camera(cameras(root), camera, root, notes, lambda c: f"image_{c}")
     image_dir, scan_dir = root / f"image_{camera}", root / "velodyne"
     if not image_dir.is_dir():
         raise DataError(image_dir, "folder not found")
@@ -62,7 +75,6 @@ def read_kitti_object(path: Path, camera: int = 2) -> FileSequence:
     calibrations = [read_kitti_object_calib(root / "calib" / f"{p.stem}.txt", camera) for p in images]
     if not calibrations:
         raise DataError(root, "no frames with both an image and a scan")
-    notes: list[str] = []
     times = assumed_timestamps(len(images), notes, "KITTI object frames")
     distinct = {c.T_cam_lidar.tobytes() for c in calibrations}
     if len(distinct) > 1:
@@ -77,4 +89,5 @@ def read_kitti_object(path: Path, camera: int = 2) -> FileSequence:
         timestamps=times,
         notes=notes,
         problems=problems,
+        camera=str(camera),
     )

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.data.extrinsic_file import rigid_problem
 from calib.data.io import (
     IMAGE_SUFFIXES,
     SCAN_SUFFIXES,
@@ -34,11 +35,13 @@ from calib.data.types import (
     Calibration,
     FileSequence,
     Frame,
+    choose_kitti_camera,
     list_files,
     optional_paths,
     pair_by_stem,
     paired_timestamps,
     shift_from_projection,
+    time_problems,
 )
 from calib.errors import DataError
 
@@ -72,10 +75,16 @@ def _resolve(path: Path, sequence: str | None) -> tuple[Path, Path, str]:
         if sequence not in names:
             raise DataError(path / "sequences" / sequence, f"no such sequence (have: {', '.join(names)})")
         return path, path / "sequences" / sequence, sequence
+    if sequence is not None and sequence != path.name:
+        raise DataError(
+            path, f"is sequence {path.name}, not {sequence!r}; leave out --sequence or give the root"
+        )
     return path.parent.parent, path, path.name
 
 
-def _read_poses(path: Path, n: int, Tr: np.ndarray) -> np.ndarray:
+def _read_poses(path: Path, n: int, Tr: np.ndarray, problems: list[str]) -> np.ndarray | None:
+    """LiDAR poses from ``poses/NN.txt``; NaN or non-rigid poses are added to ``problems`` (and
+    ``None`` returned) so ``info`` lists them and the other commands refuse the sequence."""
     try:
         rows = np.loadtxt(path, dtype=np.float64, ndmin=2)
     except ValueError as exc:
@@ -84,6 +93,16 @@ def _read_poses(path: Path, n: int, Tr: np.ndarray) -> np.ndarray:
         raise DataError(path, f"expected {n} rows of 12 numbers, got shape {rows.shape}")
     T_w_cam0 = np.tile(np.eye(4), (n, 1, 1))
     T_w_cam0[:, :3, :] = rows.reshape(n, 3, 4)
+    bad = np.flatnonzero(~np.isfinite(rows).all(axis=1))
+    if bad.size:
+        first = bad[0] + 1
+        problems.append(f"{path}: {bad.size} pose(s) hold NaN or infinite values (first on line {first})")
+        return None
+    for i, T in enumerate(T_w_cam0):
+        problem = rigid_problem(T)
+        if problem is not None:
+            problems.append(f"{path}: pose on line {i + 1} is not a rigid transform: {problem}")
+            return None
     return np.linalg.inv(Tr) @ T_w_cam0 @ Tr
 
 
@@ -97,12 +116,29 @@ def _read_class_names(path: Path) -> dict[int, str]:
         raise DataError(path, f"is not a JSON object of class id → name ({exc})") from None
 
 
-def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2) -> FileSequence:
-    """Read one KITTI odometry sequence (see the module docstring for the transform)."""
+def cameras(seq_dir: Path) -> list[int]:
+    """Indices of the ``image_N`` folders of a sequence."""
+    names = (p.name.removeprefix("image_") for p in seq_dir.glob("image_*") if p.is_dir())
+    return sorted(int(n) for n in names if n.isdigit())
+
+
+def read_kitti_odometry(
+    path: Path, sequence: str | None = None, camera: int | str | None = None
+) -> FileSequence:
+    """Read one KITTI odometry sequence (see the module docstring for the transform).
+
+    Args:
+        camera: index of the ``image_N`` folder (``None``: 2, the left colour camera, or the only
+            camera present); one that is absent is refused with the list of those present.
+    """
     root, seq_dir, name = _resolve(Path(path), sequence)
+    notes: list[str] = []
+    camera = choose_kitti_camera(cameras(seq_dir), camera, seq_dir, notes, lambda c: f"image_{c}")
     calib_path = seq_dir / "calib.txt"
     values = read_kv_file(calib_path)
-    K, T_camX_cam0 = shift_from_projection(kv_matrix(values, f"P{camera}", (3, 4), calib_path))
+    K, T_camX_cam0 = shift_from_projection(
+        kv_matrix(values, f"P{camera}", (3, 4), calib_path), calib_path, f"P{camera}"
+    )
     Tr = np.eye(4)
     Tr[:3, :] = kv_matrix(values, "Tr", (3, 4), calib_path)
     image_dir, scan_dir = seq_dir / f"image_{camera}", seq_dir / "velodyne"
@@ -114,11 +150,14 @@ def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2
         all_images, list_files(scan_dir, SCAN_SUFFIXES), image_dir, scan_dir
     )
     stems = [p.stem for p in images]
-    notes: list[str] = []
-    times = paired_timestamps(seq_dir / "times.txt", all_images, images, notes)
+    times = paired_timestamps(seq_dir / "times.txt", all_images, images, notes, problems=problems)
     lidar_times = _read_lidar_times(seq_dir / "times_lidar.txt", len(all_images), len(images))
+    if lidar_times is not None:
+        problems += time_problems(lidar_times, seq_dir / "times_lidar.txt", "LiDAR time stamp")
     poses_path = root / "poses" / f"{name}.txt"
-    poses = _read_poses(poses_path, len(all_images), Tr) if poses_path.is_file() and not problems else None
+    poses = None
+    if poses_path.is_file() and len(images) == len(all_images):
+        poses = _read_poses(poses_path, len(all_images), Tr, problems)
     calibration = Calibration(K=K, T_cam_lidar=T_camX_cam0 @ Tr, source=str(calib_path))
     return FileSequence(
         name=f"{root.name}/{name}",
@@ -135,6 +174,7 @@ def read_kitti_odometry(path: Path, sequence: str | None = None, camera: int = 2
         poses=poses,
         class_names=_read_class_names(seq_dir / "classes.json"),
         lidar_timestamps=lidar_times,
+        camera=str(camera),
     )
 
 

@@ -7,7 +7,8 @@ Transform: ``calib_velo_to_cam.txt`` gives ``[R | T]`` = LiDAR -> unrectified ca
 ``R_rect_00`` rectifies camera 0; ``P_rect_0X`` maps the rectified camera-0 frame into image X.
 So ``T_camX_lidar = T_camX_rect0 · R_rect_00 · [R | T]`` with ``T_camX_rect0`` the offset in
 ``P_rect_0X`` and ``K = P_rect_0X[:, :3]``. Camera 2 (left colour) by default; where only one
-camera folder exists (e.g. a grayscale ``image_00`` only) that camera is used and a note says so.
+camera folder exists (e.g. a grayscale ``image_00`` only) that camera is used and a note says so;
+``camera`` (``--camera``) picks another of ``image_00..03``.
 Without ``timestamps.txt`` frames are assumed at 10 Hz (noted).
 """
 
@@ -21,6 +22,7 @@ from calib.data.io import IMAGE_SUFFIXES, SCAN_SUFFIXES, kv_matrix, read_kv_file
 from calib.data.types import (
     Calibration,
     FileSequence,
+    choose_kitti_camera,
     list_files,
     pair_by_stem,
     paired_timestamps,
@@ -39,12 +41,18 @@ def is_kitti_raw(path: Path) -> bool:
     return _is_drive(path) or any(_is_drive(p) for p in path.glob("*_sync"))
 
 
+def _drive_matches(drive: Path, sequence: str) -> bool:
+    return drive.name == sequence or f"_drive_{sequence}_" in drive.name
+
+
 def _resolve_drive(path: Path, sequence: str | None) -> Path:
     if _is_drive(path):
+        if sequence is not None and not _drive_matches(path, sequence):
+            raise DataError(path, f"is drive {path.name}, not {sequence!r}; leave out --sequence")
         return path
     drives = sorted(p for p in path.glob("*_sync") if _is_drive(p))
     if sequence is not None:
-        chosen = [d for d in drives if d.name == sequence or f"_drive_{sequence}_" in d.name]
+        chosen = [d for d in drives if _drive_matches(d, sequence)]
         if len(chosen) != 1:
             raise DataError(path, f"no drive {sequence!r} (have: {', '.join(d.name for d in drives)})")
         return chosen[0]
@@ -67,28 +75,32 @@ def read_kitti_raw_timestamps(path: Path) -> np.ndarray:
         stamps = np.array([np.datetime64(ln.replace(" ", "T"), "ns") for ln in lines])
     except ValueError as exc:
         raise DataError(path, f"time stamps do not parse ({exc})") from None
-    return stamps.astype(np.int64).astype(np.float64) * 1e-9
+    seconds = stamps.astype(np.int64).astype(np.float64) * 1e-9
+    seconds[np.isnat(stamps)] = np.nan  # reported by the reader as a problem
+    return seconds
 
 
-def _choose_camera(drive: Path, camera: int, notes: list[str]) -> int:
-    if (drive / f"image_{camera:02d}" / "data").is_dir():
-        return camera
-    present = sorted(int(p.name[-2:]) for p in drive.glob("image_0[0-3]") if (p / "data").is_dir())
-    if len(present) != 1:
-        raise DataError(drive / f"image_{camera:02d}", f"camera folder not found (have: {present})")
-    notes.append(f"image_{camera:02d} absent; using the only camera, image_{present[0]:02d}")
-    return present[0]
+def cameras(drive: Path) -> list[int]:
+    """Indices of the ``image_0N/data`` folders of a drive."""
+    names = (p.name.removeprefix("image_") for p in drive.glob("image_*") if (p / "data").is_dir())
+    return sorted(int(n) for n in names if n.isdigit())
 
 
-def read_kitti_raw(path: Path, sequence: str | None = None, camera: int = 2) -> FileSequence:
-    """Read one KITTI raw drive (see the module docstring for the transform)."""
+def read_kitti_raw(path: Path, sequence: str | None = None, camera: int | str | None = None) -> FileSequence:
+    """Read one KITTI raw drive (see the module docstring for the transform).
+
+    Args:
+        camera: index of the ``image_0N`` folder (``None``: 2, the left colour camera, or the only
+            camera present, noted); one that is absent is refused with the list of those present.
+    """
     drive = _resolve_drive(Path(path), sequence)
     notes: list[str] = []
-    camera = _choose_camera(drive, camera, notes)
+    camera = choose_kitti_camera(cameras(drive), camera, drive, notes, lambda c: f"image_{c:02d}")
     cam_path = _find_calib(drive, "calib_cam_to_cam.txt")
     velo_path = _find_calib(drive, "calib_velo_to_cam.txt")
     cam_values, velo_values = read_kv_file(cam_path), read_kv_file(velo_path)
-    K, T_camX_rect0 = shift_from_projection(kv_matrix(cam_values, f"P_rect_{camera:02d}", (3, 4), cam_path))
+    key = f"P_rect_{camera:02d}"
+    K, T_camX_rect0 = shift_from_projection(kv_matrix(cam_values, key, (3, 4), cam_path), cam_path, key)
     R_rect = np.eye(4)
     R_rect[:3, :3] = kv_matrix(cam_values, "R_rect_00", (3, 3), cam_path)
     T_cam0_lidar = np.eye(4)
@@ -111,7 +123,7 @@ def read_kitti_raw(path: Path, sequence: str | None = None, camera: int = 2) -> 
         all_images, list_files(scan_dir, SCAN_SUFFIXES), image_dir, scan_dir
     )
     times = paired_timestamps(
-        image_dir.parent / "timestamps.txt", all_images, images, notes, read_kitti_raw_timestamps
+        image_dir.parent / "timestamps.txt", all_images, images, notes, read_kitti_raw_timestamps, problems
     )
     return FileSequence(
         name=drive.name,
@@ -122,4 +134,5 @@ def read_kitti_raw(path: Path, sequence: str | None = None, camera: int = 2) -> 
         timestamps=times,
         notes=notes,
         problems=problems,
+        camera=f"{camera:02d}",
     )

@@ -16,6 +16,7 @@ Transform: ROS TF messages hold ``T_parent_child`` (a child-frame point mapped i
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +27,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 
 from calib.data.io import validate_points
-from calib.data.types import Calibration, Frame, Sequence
+from calib.data.types import SAMPLE_BYTES, Calibration, Frame, Sequence, time_problems
 from calib.errors import DataError
 
 __all__ = ["BagSequence", "BagTopics", "is_bag", "write_bag"]
@@ -91,7 +92,8 @@ def decode_image(msg: object, msgtype: str, where: str) -> np.ndarray:
         return np.repeat(image, 3, axis=2)
     if enc.startswith("bgr"):
         image = image[:, :, 2::-1]
-    return np.ascontiguousarray(image[:, :, :3])
+    # a copy: the message's buffer is read only (torch warns on such arrays) and shared
+    return np.array(image[:, :, :3], order="C")
 
 
 def decode_cloud(msg: object, where: str) -> tuple[np.ndarray, np.ndarray | None]:
@@ -183,17 +185,28 @@ class BagSequence(Sequence):
         self.path = Path(path)
         self.name = self.path.stem
         self.notes, self.problems = [], []
+        self.reader = None
         try:
             self.reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             self.reader.open()
         except Exception as exc:  # rosbags raises several unrelated types for unreadable bags
             raise DataError(self.path, f"not a readable ROS bag ({exc})") from None
+        try:
+            self._index(topics, max_gap, T_cam_lidar)
+        except BaseException:
+            self.close()  # a refused bag leaves no open handle behind
+            raise
+
+    def _index(self, topics: BagTopics, max_gap: float, T_cam_lidar: np.ndarray | None) -> None:
+        """Pick the topics, pair the stamps, read the calibration."""
         self._image = self._pick(topics.image, IMAGE_TYPES, "image")
         self._cloud = self._pick(topics.cloud, (CLOUD_TYPE,), "point cloud")
         info_conn = self._pick(topics.camera_info, (INFO_TYPE,), "camera_info", near=self._image.topic)
         info = self._first(info_conn)
+        self.camera = self._image.topic
         image_stamps = self._stamps(self._image)
         cloud_stamps = self._stamps(self._cloud)
+        self._counts = {self._image.topic: len(image_stamps), self._cloud.topic: len(cloud_stamps)}
         self._pairs = self._pair(image_stamps, cloud_stamps, max_gap)
         if not self._pairs:
             raise DataError(self.path, f"no image–scan pair within {max_gap * 1000:g} ms")
@@ -204,8 +217,11 @@ class BagSequence(Sequence):
         )
         self.timestamps = np.array([image_stamps[i][0] for i, _ in self._pairs])
         self._lidar_times = np.array([cloud_stamps[j][0] for _, j in self._pairs])
+        self.lidar_timestamps = self._lidar_times
         self._image_times_ns = [image_stamps[i][1] for i, _ in self._pairs]
         self._cloud_times_ns = [cloud_stamps[j][1] for _, j in self._pairs]
+        for times, connection in ((self.timestamps, self._image), (self._lidar_times, self._cloud)):
+            self.problems += time_problems(times, f"{self.path} [{connection.topic}]", "header stamp")
         if T_cam_lidar is None:
             first_cloud = self._first(self._cloud)
             T_cam_lidar = lookup_T_cam_lidar(
@@ -225,16 +241,16 @@ class BagSequence(Sequence):
             chosen = [c for c in connections if c.topic == topic]
             if not chosen:
                 have = ", ".join(sorted({c.topic for c in connections})) or "none"
-                raise DataError(self.path, f"no {what} topic {topic!r} (have: {have})")
+                raise DataError(self.path, f"no {what} topic {topic!r} (available: {have})")
             return chosen[0]
         topics = sorted({c.topic for c in connections})
         if near and len(topics) > 1:  # the camera_info beside the image topic
             namespace = near.rsplit("/", 1)[0]
-            topics = [t for t in topics if t.startswith(namespace)] or topics
+            topics = [t for t in topics if t.startswith(namespace + "/")] or topics
         if len(topics) != 1:
-            raise DataError(
-                self.path, f"found {len(topics)} {what} topics ({', '.join(topics) or 'none'}); choose one"
-            )
+            pick = "; pick one with --camera" if what == "image" and topics else ""
+            found = ", ".join(topics) or "none"
+            raise DataError(self.path, f"found {len(topics)} {what} topics ({found}){pick}")
         return next(c for c in connections if c.topic == topics[0])
 
     def _first(self, connection):
@@ -263,10 +279,11 @@ class BagSequence(Sequence):
         return sorted((i, j) for j, (_, i) in best.items())
 
     def _calibration(self, info: object, T_cam_lidar: np.ndarray | None) -> Calibration:
-        K = np.asarray(_field(info, "K"), dtype=np.float64).reshape(3, 3)
-        D = np.asarray(_field(info, "D"), dtype=np.float64)
+        # copies (np.array): the message's arrays are read only, and torch warns on those
+        K = np.array(_field(info, "K"), dtype=np.float64).reshape(3, 3)
+        D = np.array(_field(info, "D"), dtype=np.float64)
         if "rect" in self._image.topic:
-            K = np.asarray(_field(info, "P"), dtype=np.float64).reshape(3, 4)[:, :3]
+            K = np.array(np.asarray(_field(info, "P"), dtype=np.float64).reshape(3, 4)[:, :3])
             D = np.zeros(0)
         return Calibration(
             K=K,
@@ -284,9 +301,27 @@ class BagSequence(Sequence):
     def __len__(self) -> int:
         return len(self._pairs)
 
+    def _fingerprint_parts(self):
+        """The recording's file names and sizes, the topics read, their message counts, and the
+        head of the first, middle and last paired image and cloud messages."""
+        files = [self.path] if self.path.is_file() else sorted(p for p in self.path.iterdir() if p.is_file())
+        for file in files:
+            yield f"{file.name}:{file.stat().st_size}"
+        for topic, count in sorted(self._counts.items()):
+            yield f"{topic}:{count}"
+        n = len(self)
+        topics = ((self._image, self._image_times_ns), (self._cloud, self._cloud_times_ns))
+        for i in sorted({0, n // 2, n - 1} if n else set()):
+            for connection, stamps in topics:
+                start = stamps[i]
+                for _, _, raw in self.reader.messages(connections=[connection], start=start, stop=start + 1):
+                    yield hashlib.sha256(bytes(raw[:SAMPLE_BYTES])).hexdigest()[:16]
+                    break
+
     def frame(self, i: int) -> Frame:
         where = f"{self.path} [{self._image.topic} #{i}]"
         image = decode_image(self._message(self._image, self._image_times_ns[i]), self._image.msgtype, where)
+        self._check_image_size(i, image, where)
         if self.calibration.distortion is not None:
             image = cv2.undistort(image, self.calibration.K, self.calibration.distortion)
         points, times = decode_cloud(
@@ -320,6 +355,7 @@ def write_bag(
     lidar_frame: str = "lidar",
     image_topic: str | None = None,
     cloud_topic: str = "/lidar/points",
+    second_image_topic: str | None = None,
 ) -> Path:
     """Write frames as a ROS bag: image (raw ``rgb8`` or JPEG), ``camera_info``, ``PointCloud2``
     (x y z intensity float32) and ``/tf_static`` holding ``T_lidar_cam`` (parent LiDAR, child
@@ -327,6 +363,8 @@ def write_bag(
 
     Args:
         path: ``.bag`` file (``ros_version=1``) or bag folder (``ros_version=2``); must not exist.
+        second_image_topic: also write each image mirrored left–right on this topic, with a
+            ``camera_info`` beside it (a rig with two cameras, to pick one with ``camera``).
     """
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import Writer as Writer2
@@ -355,6 +393,10 @@ def write_bag(
             "info": writer.add_connection("/camera/camera_info", INFO_TYPE, typestore=store),
             "cloud": writer.add_connection(cloud_topic, CLOUD_TYPE, typestore=store),
         }
+        if second_image_topic:
+            info_topic = second_image_topic.rsplit("/", 1)[0] + "/camera_info"
+            conns["image2"] = writer.add_connection(second_image_topic, image_type, typestore=store)
+            conns["info2"] = writer.add_connection(info_topic, INFO_TYPE, typestore=store)
         calibration = frames[0].calibration
         t0 = frames[0].timestamp or 0.0
         if calibration.T_cam_lidar is not None:
@@ -378,21 +420,23 @@ def write_bag(
             t = frame.timestamp if frame.timestamp is not None else t0 + i / 10.0
             t_lidar = frame.lidar_timestamp if frame.lidar_timestamp is not None else t
             H, W = frame.image_size
-            if compressed:
-                ok, jpg = cv2.imencode(".jpg", cv2.cvtColor(frame.image, cv2.COLOR_RGB2BGR))
-                image_msg = types[image_type](
-                    header=header(t, camera_frame), format="jpeg", data=np.frombuffer(jpg.tobytes(), np.uint8)
-                )
-            else:
-                image_msg = types[image_type](
+
+            def image_message(image: np.ndarray, t: float = t, H: int = H, W: int = W):
+                if compressed:
+                    ok, jpg = cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+                    data = np.frombuffer(jpg.tobytes(), np.uint8)
+                    return types[image_type](header=header(t, camera_frame), format="jpeg", data=data)
+                return types[image_type](
                     header=header(t, camera_frame),
                     height=H,
                     width=W,
                     encoding="rgb8",
                     is_bigendian=0,
                     step=3 * W,
-                    data=frame.image.reshape(-1).copy(),
+                    data=np.ascontiguousarray(image).reshape(-1).copy(),
                 )
+
+            image_msg = image_message(frame.image)
             info = types[INFO_TYPE](
                 header=header(t, camera_frame),
                 height=H,
@@ -425,4 +469,8 @@ def write_bag(
             writer.write(conns["image"], int(t * 1e9), serialize(image_msg, image_type))
             writer.write(conns["info"], int(t * 1e9), serialize(info, INFO_TYPE))
             writer.write(conns["cloud"], int(t_lidar * 1e9), serialize(cloud, CLOUD_TYPE))
+            if "image2" in conns:
+                mirrored = image_message(frame.image[:, ::-1])
+                writer.write(conns["image2"], int(t * 1e9), serialize(mirrored, image_type))
+                writer.write(conns["info2"], int(t * 1e9), serialize(info, INFO_TYPE))
     return path

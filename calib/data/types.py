@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from calib.data.extrinsic_file import rigid_problem
 from calib.data.io import read_image, read_label, read_label_image, read_point_times, read_scan
 from calib.errors import DataError
 
@@ -41,32 +42,63 @@ class Calibration:
     source: str = ""
 
     def __post_init__(self) -> None:
-        K = np.asarray(self.K, dtype=np.float64)
-        if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise DataError(self.source or "calibration", f"invalid intrinsics K: {K.tolist()}")
+        where = self.source or "calibration"
+        try:  # copies: the calibration owns its arrays (a bag's are read-only views of a message)
+            K = np.array(self.K, dtype=np.float64)
+        except (ValueError, TypeError):
+            raise DataError(where, "intrinsics K are not a 3x3 matrix of numbers") from None
+        if K.shape != (3, 3) or not np.isfinite(K).all():
+            raise DataError(where, f"intrinsics K must be a finite 3x3 matrix, got {K.tolist()}")
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise DataError(
+                where, f"intrinsics need fx > 0 and fy > 0, got fx = {K[0, 0]:g}, fy = {K[1, 1]:g}"
+            )
         object.__setattr__(self, "K", K)
         for name in ("T_cam_lidar", "initial_T_cam_lidar"):
             T = getattr(self, name)
             if T is None:
                 continue
-            T = np.asarray(T, dtype=np.float64)
-            R = T[:3, :3] if T.shape == (4, 4) else None
-            if R is None or not np.isfinite(T).all() or not np.allclose(R @ R.T, np.eye(3), atol=1e-3):
-                raise DataError(self.source or "calibration", f"{name} is not a rigid 4x4 transform")
+            try:
+                T = np.array(T, dtype=np.float64)
+            except (ValueError, TypeError):
+                raise DataError(where, f"{name} is not a 4x4 matrix of numbers") from None
+            problem = rigid_problem(T)
+            if problem is not None:
+                raise DataError(where, f"{name} is not a rigid 4x4 transform: {problem}")
             object.__setattr__(self, name, T)
+        if self.distortion is not None:
+            object.__setattr__(self, "distortion", np.array(self.distortion, dtype=np.float64))
 
 
-def shift_from_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def shift_from_projection(
+    P: np.ndarray, source: str | Path = "calibration", key: str = "P"
+) -> tuple[np.ndarray, np.ndarray]:
     """Split a rectified 3x4 projection ``P = K [I | t]`` into ``K`` and ``T_camX_rect0``.
 
     KITTI's ``P_rect_0X`` (and ``P2`` of the odometry/object ``calib.txt``) map points of the
     rectified camera-0 frame into image X; the offset ``t`` is camera X's position relative to
     camera 0, so ``T_camX_lidar = T_camX_rect0 · T_rect0_lidar``.
 
+    Args:
+        P: ``(3, 4)`` projection. source, key: the file and entry it came from, for the message.
+
     Returns:
         ``K (3, 3)`` and ``T_camX_rect0 (4, 4)``.
+
+    Raises:
+        DataError: for non-finite values or intrinsics that cannot be inverted (``fx``, ``fy``
+            not positive, a zero ``P[2, 2]``).
     """
+    P = np.asarray(P, dtype=np.float64)
     K = P[:, :3]
+    if not np.isfinite(P).all():
+        raise DataError(source, f"{key!r} holds NaN or infinite values")
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[2, 2] == 0:
+        raise DataError(
+            source,
+            f"{key!r} has invalid intrinsics: fx = {K[0, 0]:g}, fy = {K[1, 1]:g}, P[2, 2] = {K[2, 2]:g} "
+            "(fx and fy must be positive, P[2, 2] non-zero)",
+        )
     T = np.eye(4)
     T[:3, 3] = np.linalg.solve(K, P[:, 3])
     return K, T
@@ -124,6 +156,8 @@ class Sequence(abc.ABC, SequenceABC):
         poses: ``(len, 4, 4)`` ground-truth poses when the layout ships them, else ``None``.
         class_names: label id → name where the dataset names its own classes (a ``classes.json``
             beside the sequence); empty means SemanticKITTI's names.
+        camera: which camera the frames come from (KITTI index, bag image topic; empty where the
+            layout has one camera).
     """
 
     name: str
@@ -134,6 +168,7 @@ class Sequence(abc.ABC, SequenceABC):
     problems: list[str]
     poses: np.ndarray | None = None
     class_names: dict[int, str] = {}
+    camera: str = ""
 
     @abc.abstractmethod
     def __len__(self) -> int: ...
@@ -151,17 +186,48 @@ class Sequence(abc.ABC, SequenceABC):
         return (self.frame(i) for i in range(len(self)))
 
     def fingerprint(self) -> str:
-        """A short hex digest that tells this dataset from another: layout, name, frame count,
-        camera times and calibration. Maps, predictions and checkpoints carry it, and are refused
-        for a sequence with another one."""
+        """A short hex digest that tells this dataset from another: layout, camera, frame count,
+        camera and LiDAR times, calibration, and what :meth:`_fingerprint_parts` adds (file names
+        and sizes and the head of a few files; a bag's size, topics, message counts and a few
+        messages). Cheap: files are listed, and at most six are partly read.
+        The dataset's folder name and location are left out, so a copied or moved dataset keeps
+        its fingerprint. Maps, predictions and checkpoints carry it, and are refused for a
+        sequence with another one."""
         digest = hashlib.sha256()
-        for part in (self.layout, self.name, str(len(self))):
+        for part in (self.layout, str(self.camera), str(len(self))):
             digest.update(part.encode() + b"\0")
         digest.update(np.ascontiguousarray(self.timestamps, np.float64).tobytes())
-        digest.update(np.ascontiguousarray(self.calibration.K, np.float64).tobytes())
-        if self.calibration.T_cam_lidar is not None:
-            digest.update(np.ascontiguousarray(self.calibration.T_cam_lidar, np.float64).tobytes())
+        lidar_times = getattr(self, "lidar_timestamps", None)
+        if lidar_times is not None:
+            digest.update(b"lidar\0" + np.ascontiguousarray(lidar_times, np.float64).tobytes())
+        calibrations = getattr(self, "calibrations", None) or [self.calibration]
+        for calibration in calibrations:
+            digest.update(np.ascontiguousarray(calibration.K, np.float64).tobytes())
+            if calibration.T_cam_lidar is not None:
+                digest.update(np.ascontiguousarray(calibration.T_cam_lidar, np.float64).tobytes())
+        for part in self._fingerprint_parts():
+            digest.update(part.encode() + b"\0")
         return digest.hexdigest()[:16]
+
+    def _fingerprint_parts(self) -> Iterator[str]:
+        """What else identifies this dataset's content (subclasses add their files)."""
+        return iter(())
+
+    def _check_image_size(self, i: int, image: np.ndarray, where: str | Path) -> None:
+        """Refuse an image whose size differs from the first one read from this sequence: every
+        stage (maps summed over a sequence, batches, one ``K``) needs one size."""
+        size = (int(image.shape[0]), int(image.shape[1]))
+        first = getattr(self, "_first_image_size", None)
+        if first is None:
+            self._first_image_size = (size, i)
+            return
+        (H, W), j = first
+        if size != (H, W):
+            raise DataError(
+                where,
+                f"image is {size[1]}x{size[0]} but frame {j}'s is {W}x{H} (W x H); "
+                "all images of a sequence must have one size",
+            )
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release open handles (bags); file layouts hold none."""
@@ -171,6 +237,20 @@ class Sequence(abc.ABC, SequenceABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+SAMPLE_BYTES = 65536
+"""How much of a sampled file the fingerprint reads."""
+
+
+def head_digest(path: Path, size: int = SAMPLE_BYTES) -> str:
+    """SHA-256 of the first ``size`` bytes of a file (``"unreadable"`` when it cannot be read:
+    the reader reports that file itself)."""
+    try:
+        with open(path, "rb") as handle:
+            return hashlib.sha256(handle.read(size)).hexdigest()[:16]
+    except OSError:
+        return "unreadable"
 
 
 def _listing_problems(paths: list[Path], kind: str) -> list[str]:
@@ -211,6 +291,7 @@ class FileSequence(Sequence):
         image_label_paths: optional per-frame class PNGs.
         point_time_paths: optional per-frame float32 files of per-point times (seconds).
         lidar_timestamps: optional LiDAR scan times in seconds, when they differ from the camera's.
+        camera: which camera the images come from (see :attr:`Sequence.camera`).
     """
 
     def __init__(
@@ -230,6 +311,7 @@ class FileSequence(Sequence):
         point_time_paths: list[Path | None] | None = None,
         class_names: dict[int, str] | None = None,
         lidar_timestamps: np.ndarray | None = None,
+        camera: str = "",
     ):
         n = len(image_paths)
         if len(scan_paths) != n or len(timestamps) != n:
@@ -248,13 +330,30 @@ class FileSequence(Sequence):
         self.poses = poses
         self.class_names = dict(class_names or {})
         self.lidar_timestamps = None if lidar_timestamps is None else np.asarray(lidar_timestamps, np.float64)
+        self.camera = camera
 
     def __len__(self) -> int:
         return len(self.image_paths)
 
+    def _fingerprint_parts(self) -> Iterator[str]:
+        """Name and size of every image and scan (one ``stat`` each), and the first
+        :data:`SAMPLE_BYTES` of the first, middle and last image and scan (two datasets of
+        equally sized files still differ there)."""
+        for path in (*self.image_paths, *self.scan_paths):
+            try:
+                size = path.stat().st_size
+            except OSError:
+                size = -1
+            yield f"{path.name}:{size}"
+        n = len(self)
+        for i in sorted({0, n // 2, n - 1} if n else set()):
+            for path in (self.image_paths[i], self.scan_paths[i]):
+                yield f"{path.name}:{head_digest(path)}"
+
     def frame(self, i: int) -> Frame:
         calibration = self.calibrations[i] if self.calibrations else self.calibration
         image = read_image(self.image_paths[i])
+        self._check_image_size(i, image, self.image_paths[i])
         if calibration.distortion is not None and np.any(calibration.distortion):
             image = cv2.undistort(image, calibration.K, calibration.distortion)
         points = read_scan(self.scan_paths[i])
@@ -272,6 +371,57 @@ class FileSequence(Sequence):
             image_labels=read_label_image(image_label_path) if image_label_path else None,
             point_times=read_point_times(times_path, len(points)) if times_path else None,
         )
+
+
+DEFAULT_KITTI_CAMERA = 2
+"""KITTI's left colour camera, the default where a KITTI layout holds several cameras."""
+
+
+def parse_kitti_camera(camera: int | str | None) -> int | None:
+    """A KITTI camera index from ``2``, ``"2"``, ``"02"``, ``"image_2"`` or ``"image_02"``;
+    ``None`` stays ``None`` (the layout's default)."""
+    if camera is None or isinstance(camera, int) and not isinstance(camera, bool):
+        return camera
+    text = str(camera).strip()
+    digits = text.removeprefix("image_")
+    if not digits.isdigit():
+        raise DataError("--camera", f"{text!r} is not a KITTI camera index (0, 1, 2, 3 or image_0N)")
+    return int(digits)
+
+
+def choose_kitti_camera(
+    present: list[int],
+    camera: int | str | None,
+    where: Path,
+    notes: list[str],
+    folder: Callable[[int], str],
+) -> int:
+    """The camera to read among those ``present`` (indices whose image folder exists).
+
+    ``None`` picks camera 2 (left colour), or the only camera present (noted); a named camera
+    that is not present is refused with a line listing those that are.
+    """
+    index = parse_kitti_camera(camera)
+    have = ", ".join(str(c) for c in present) or "none"
+    default = folder(DEFAULT_KITTI_CAMERA)
+    if index is None:
+        if DEFAULT_KITTI_CAMERA in present:
+            return DEFAULT_KITTI_CAMERA
+        if len(present) == 1:
+            notes.append(f"{default} absent; using the only camera, {folder(present[0])}")
+            return present[0]
+        if not present:
+            raise DataError(where, f"no camera folder ({default}) found")
+        raise DataError(where, f"has no {default} but cameras {have}; pick one with --camera")
+    if index not in present:
+        raise DataError(where, f"no camera {index} ({folder(index)} not found); available cameras: {have}")
+    return index
+
+
+def refuse_sequence(path: Path, sequence: str | None, what: str) -> None:
+    """Layouts holding one sequence refuse a ``--sequence`` rather than ignore it."""
+    if sequence is not None:
+        raise DataError(path, f"{what} holds one sequence; leave out --sequence (got {sequence!r})")
 
 
 def list_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
@@ -300,19 +450,42 @@ def read_seconds(path: Path) -> np.ndarray:
         raise DataError(path, f"time stamps do not parse ({exc})") from None
 
 
+def time_problems(times: np.ndarray, where: str | Path, what: str = "time stamp") -> list[str]:
+    """Problems of a sequence's time stamps: NaN or infinite values, and stamps that do not
+    increase from one frame to the next (each as one line naming ``where``)."""
+    t = np.asarray(times, dtype=np.float64)
+    problems = []
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        problems.append(f"{where}: {bad.size} {what}(s) NaN or infinite (first at frame {bad[0]})")
+    steps = np.flatnonzero(np.diff(t) <= 0)  # NaN compares False: counted above, not here
+    if steps.size:
+        i = int(steps[0]) + 1
+        problems.append(
+            f"{where}: {what}s do not increase: frame {i} at {t[i]:.9g} s follows {t[i - 1]:.9g} s "
+            f"({steps.size} such step(s))"
+        )
+    return problems
+
+
 def paired_timestamps(
     path: Path,
     all_images: list[Path],
     images: list[Path],
     notes: list[str],
     parse: Callable[[Path], np.ndarray] = read_seconds,
+    problems: list[str] | None = None,
 ) -> np.ndarray:
     """Time stamps of the paired ``images`` from a file holding one per image file (sorted
-    order, ``all_images``); 10 Hz assumed (and noted) when the file is absent."""
+    order, ``all_images``); 10 Hz assumed (and noted) when the file is absent. NaN and
+    non-increasing stamps are appended to ``problems`` (see :func:`time_problems`)."""
     if not path.is_file():
         return assumed_timestamps(len(images), notes, str(path))
     stamps = parse(path)
     if len(stamps) != len(all_images):
         raise DataError(path, f"holds {len(stamps)} time stamps for {len(all_images)} images")
     index = {p: i for i, p in enumerate(all_images)}
-    return stamps[[index[p] for p in images]]
+    paired = stamps[[index[p] for p in images]]
+    if problems is not None:
+        problems += time_problems(paired, path)
+    return paired

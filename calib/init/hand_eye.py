@@ -25,10 +25,9 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from calib.errors import NumericalError
+from calib.observability import WeakDirection, weak_directions
 
 __all__ = ["HandEyeConfig", "HandEyeResult", "UnobservableError", "WeakDirection", "hand_eye"]
-
-AXES = ("x", "y", "z")
 
 
 class UnobservableError(NumericalError):
@@ -36,7 +35,7 @@ class UnobservableError(NumericalError):
 
 
 class HandEyeConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     min_rotation_deg: float = Field(
         1.0, ge=0, description="pairs rotating less are left out of the closed-form rotation"
@@ -53,37 +52,6 @@ class HandEyeConfig(BaseModel):
     )
     weak_std_cm: float = Field(2.0, gt=0, description="a translation direction with a larger std is weak")
     weak_std_deg: float = Field(0.2, gt=0, description="a rotation direction with a larger std is weak")
-
-
-@dataclass(frozen=True)
-class WeakDirection:
-    """A direction of the extrinsic the motion hardly constrains.
-
-    Attributes:
-        kind: ``translation`` or ``rotation``.
-        std: its standard deviation (cm or degrees).
-        direction_lidar: unit ``(3,)`` in the LiDAR frame (for a rotation: the axis).
-        axis: the LiDAR axis it is closest to (``+z``), or ``""`` when none within 25°.
-    """
-
-    kind: str
-    std: float
-    direction_lidar: np.ndarray
-    axis: str
-
-    def __str__(self) -> str:
-        unit = "cm" if self.kind == "translation" else "°"
-        where = f"LiDAR {self.axis}" if self.axis else f"LiDAR direction {np.round(self.direction_lidar, 2)}"
-        return f"{self.kind} along {where} (std {self.std:.2f} {unit})"
-
-    def to_dict(self) -> dict:
-        return {
-            "kind": self.kind,
-            "std": self.std,
-            "direction_lidar": self.direction_lidar.tolist(),
-            "axis": self.axis,
-            "text": str(self),
-        }
 
 
 @dataclass(frozen=True)
@@ -191,22 +159,11 @@ def _cauchy_except_prior(z: np.ndarray) -> np.ndarray:
 def _weak_directions(
     covariance: np.ndarray, R_X: np.ndarray, config: HandEyeConfig
 ) -> tuple[list[WeakDirection], np.ndarray, np.ndarray]:
-    """Principal directions of each 3x3 block whose std passes the thresholds, expressed in the
-    LiDAR frame; also the per-camera-axis stds (degrees, cm)."""
-    weak = []
-    for kind, block, scale, limit in (
-        ("rotation", covariance[:3, :3], np.degrees(1.0), config.weak_std_deg),
-        ("translation", covariance[3:, 3:], 100.0, config.weak_std_cm),
-    ):
-        values, vectors = np.linalg.eigh(block)
-        for value, vector in zip(values, vectors.T, strict=True):
-            std = float(np.sqrt(max(value, 0.0)) * scale)
-            if std > limit:
-                lidar = R_X.T @ vector  # camera-frame direction into the LiDAR frame
-                lidar = lidar * np.sign(lidar[np.argmax(np.abs(lidar))])
-                best = int(np.argmax(np.abs(lidar)))
-                axis = f"+{AXES[best]}" if abs(lidar[best]) > np.cos(np.radians(25)) else ""
-                weak.append(WeakDirection(kind, std, lidar, axis))
+    """The weak directions (rotation block first in this solver's covariance), and the
+    per-camera-axis stds (degrees, cm)."""
+    weak = weak_directions(
+        covariance[3:, 3:], covariance[:3, :3], R_X, config.weak_std_cm, config.weak_std_deg
+    )
     std_deg = np.degrees(np.sqrt(np.clip(np.diag(covariance)[:3], 0, None)))
     std_cm = 100 * np.sqrt(np.clip(np.diag(covariance)[3:], 0, None))
     return weak, std_deg, std_cm

@@ -34,7 +34,7 @@ __all__ = ["LidarOdometryConfig", "Stage1Config", "Stage1Result", "initial_calib
 
 
 class LidarOdometryConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     max_range_m: float | None = Field(
         None, gt=0, description="None: from the data, the 99.5th percentile range of the first scans"
@@ -47,7 +47,7 @@ class LidarOdometryConfig(BaseModel):
 class Stage1Config(BaseModel):
     """``configs/init_calib.yaml``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     lidar: LidarOdometryConfig = LidarOdometryConfig()
     visual: VisualOdometryConfig = VisualOdometryConfig()

@@ -20,7 +20,7 @@ __all__ = ["CameraMotion", "VisualOdometryConfig", "visual_odometry"]
 
 
 class VisualOdometryConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     max_corners: int = Field(1500, ge=8)
     corner_quality: float = Field(0.005, gt=0, le=1)

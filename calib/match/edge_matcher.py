@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat
 from scipy import ndimage
 
 from calib.data.types import Frame
@@ -29,7 +29,7 @@ __all__ = ["EdgeMatcher", "EdgeMatcherConfig", "image_edges", "lidar_edges"]
 class EdgeMatcherConfig(BaseModel):
     """Parameters of :class:`EdgeMatcher`; pixel sizes refer to the working resolution."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     working_focal_px: float = Field(
         360.0,
@@ -45,7 +45,7 @@ class EdgeMatcherConfig(BaseModel):
         "falls half a spacing beyond the last return, where the true edge lies on average",
     )
     far_depth_m: float = Field(200.0, gt=0, description="depth given to no-return pixels")
-    depth_edge_px: tuple[float, float] = Field(
+    depth_edge_px: tuple[NonNegativeFloat, NonNegativeFloat] = Field(
         (0.04, 0.2),
         description="|∇ log depth| per pixel where a depth edge starts and is full "
         "(ground seen at a grazing angle stays below the start)",
@@ -81,6 +81,8 @@ class EdgeMatcherConfig(BaseModel):
     def model_post_init(self, __context: object) -> None:
         if self.window % 2 == 0:
             raise ValueError(f"window must be odd, got {self.window}")
+        if self.depth_edge_px[1] <= self.depth_edge_px[0]:
+            raise ValueError(f"depth_edge_px: the full edge must exceed the start, got {self.depth_edge_px}")
 
 
 def _orientation_field(gx: np.ndarray, gy: np.ndarray, strength: np.ndarray) -> np.ndarray:

@@ -3,7 +3,7 @@ matcher three times; each pass starts from the last estimate)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -12,7 +12,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib.data.types import Frame
-from calib.errors import SupportnetError
+from calib.errors import DataError
 from calib.geometry import calibration_error
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcherConfig
@@ -20,16 +20,14 @@ from calib.projection import pixel_lookup
 from calib.refine.sgis import support_sample, uniform_sample
 from calib.refine.solver import RefineConfig, refine_extrinsic
 from calib.refine.tracking import OnlineConfig
+from calib.support.source import SupportSource
 from calib.yaml_io import load_config
 
-__all__ = ["CalibrateConfig", "PassesResult", "SamplingConfig", "SupportFn", "draw", "refine_passes"]
-
-SupportFn = Callable[[Frame], np.ndarray | None]
-"""The support map ``(H, W)`` in [0, 1] of a frame, or ``None`` for uniform sampling."""
+__all__ = ["CalibrateConfig", "PassesResult", "SamplingConfig", "draw", "refine_passes"]
 
 
 class SamplingConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     per_frame: int = Field(2000, ge=6, description="correspondences drawn from each frame per pass")
     floor: float = Field(0.01, ge=0, description="added to every support value (zero stays possible)")
@@ -39,7 +37,7 @@ class SamplingConfig(BaseModel):
 class CalibrateConfig(BaseModel):
     """``configs/calibrate.yaml``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     matcher: Literal["edge", "flow"] = "edge"
     flow_model: Path | None = Field(None, description="the flow matcher's ONNX file (None: the shipped one)")
@@ -55,6 +53,8 @@ class CalibrateConfig(BaseModel):
     passes: int = Field(3, ge=1)
     min_update_cm: float = Field(0.01, ge=0, description="stop early when a pass moves less than this")
     min_update_deg: float = Field(0.001, ge=0)
+    weak_std_cm: float = Field(1.0, gt=0, description="a translation direction with a larger std is weak")
+    weak_std_deg: float = Field(0.1, gt=0, description="a rotation direction with a larger std is weak")
     online: OnlineConfig = OnlineConfig()
 
 
@@ -86,14 +86,14 @@ def refine_passes(
     frames: Sequence[Frame],
     T_init: np.ndarray,
     matcher: Matcher,
-    support: SupportFn,
+    support: SupportSource,
     config: CalibrateConfig,
     rng: np.random.Generator,
 ) -> PassesResult:
     """Refine ``T_init`` over ``frames`` (one shared ``K``) in up to ``config.passes`` passes."""
     K = frames[0].K
     if any(not np.allclose(f.K, K) for f in frames):
-        raise SupportnetError("frames with different intrinsics cannot share one refinement")
+        raise DataError("frames", "have different intrinsics and cannot share one refinement")
     T, history = np.asarray(T_init, np.float64), []
     for _ in range(config.passes):
         points, targets, weights = [], [], []

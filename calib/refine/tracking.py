@@ -14,32 +14,35 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat
 
 from calib.geometry import se3_exp, se3_log
+from calib.results import block_std
 
 __all__ = ["OnlineConfig", "OnlineState", "departure", "extrinsic_of"]
 
 
 class OnlineConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     window: int = Field(10, ge=1, description="frames refined together")
     step: int = Field(5, ge=1, description="frames between the starts of two windows")
-    initial_std: tuple[float, float] = Field(
+    initial_std: tuple[PositiveFloat, PositiveFloat] = Field(
         (10.0, 2.0), description="cm, °: how far the start may be from the truth"
     )
-    process_std: tuple[float, float] = Field(
+    process_std: tuple[NonNegativeFloat, NonNegativeFloat] = Field(
         (1.0, 0.2), description="cm, °: how far the mount may move between two windows"
     )
-    measurement_floor: tuple[float, float] = Field(
+    measurement_floor: tuple[NonNegativeFloat, NonNegativeFloat] = Field(
         (3.0, 0.05),
         description="cm, °: added to each window's covariance (the matcher's errors are correlated "
         "across points, so the refinement's own covariance is optimistic; one window's translation "
         "scatters by a few cm)",
     )
     drift_sigmas: float = Field(3.0, gt=0, description="drift: beyond this many standard deviations ...")
-    drift_min: tuple[float, float] = Field((2.0, 0.3), description="... and beyond this size (cm, °)")
+    drift_min: tuple[NonNegativeFloat, NonNegativeFloat] = Field(
+        (2.0, 0.3), description="... and beyond this size (cm, °)"
+    )
 
 
 def _diag(sizes: tuple[float, float]) -> np.ndarray:
@@ -80,8 +83,7 @@ class OnlineState:
     @property
     def std(self) -> tuple[float, float]:
         """Standard deviations of the translation (cm) and rotation (°), the largest per block."""
-        values = [np.sqrt(np.linalg.eigvalsh(self.P[s, s]).max()) for s in (slice(0, 3), slice(3, 6))]
-        return 100 * float(values[0]), float(np.degrees(values[1]))
+        return block_std(self.P)
 
     @property
     def drift(self) -> bool:

@@ -31,11 +31,12 @@ Score = Literal["gaussian", "cauchy", "confidence", "gaussian_confidence"]
 class SupportConfig(BaseModel):
     """How correspondences become a support map."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     sigma_px: float = Field(
         6.0,
         ge=2,
+        le=100,
         description="σ of Eq. 2, pixels of the full image (splatting matches the direct sum "
         "to 3% of the peak at 2 px, 0.2% at 6)",
     )
@@ -170,7 +171,7 @@ def support_maps(correspondences: Correspondences, config: SupportConfig = Suppo
 class MapsConfig(BaseModel):
     """``configs/maps.yaml``: the matcher and how its residuals become support."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     matcher: Literal["edge", "flow"] = "edge"
     flow_model: Path | None = Field(None, description="the flow matcher's ONNX file (None: the shipped one)")

@@ -1,1 +1,2 @@
-"""Synthetic vineyard and urban worlds with ground truth (issue 3, in progress)."""
+"""Synthetic vineyard and urban worlds with every ground truth, written in the KITTI odometry
+layout (``supportnet synth``; configs in ``calib/defaults/synth``)."""

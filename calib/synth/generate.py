@@ -4,6 +4,7 @@ at their own time stamps, and write the KITTI odometry layout with every ground 
 from __future__ import annotations
 
 import json
+import math
 import multiprocessing
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -14,7 +15,9 @@ import torch
 
 from calib.data.kitti_odometry import KittiOdometryWriter
 from calib.data.types import Calibration, Frame
+from calib.errors import ConfigError
 from calib.geometry import perturb, random_perturbation, se3_exp, se3_log
+from calib.seeds import check_seed
 from calib.synth.raycast import Raycaster
 from calib.synth.render import Camera, Lidar
 from calib.synth.synth_config import ExtrinsicConfig, SynthConfig
@@ -25,6 +28,10 @@ from calib.synth.world import World
 __all__ = ["SyntheticFrame", "Synthesizer", "reference_extrinsic", "write_sequence"]
 
 RIGID_CLASSES = {10, 50, 51, 52, 71, 80, 81, 99}
+MAX_FRAMES = 100_000
+"""At most this many frames (about 3 h at 10 Hz): the world grows with the distance driven."""
+MAX_DRIFT = (100.0, 45.0)
+"""The largest drift (cm, °) by the last frame: beyond that a mount has fallen off, not drifted."""
 
 
 def reference_extrinsic(config: ExtrinsicConfig, rng: np.random.Generator) -> np.ndarray:
@@ -60,12 +67,25 @@ class Synthesizer:
     Args:
         config: the validated configuration.
         frames: how many frames (sets how far the vehicle drives, hence the world's size).
-        seed: every random choice follows from it; the same seed gives the same bytes.
+        seed: every random choice follows from it; the same seed gives the same bytes. An
+            integer in [0, 2³²); distinct seeds give distinct worlds.
+        drift: ``(cm, °)`` the extrinsic has drifted by the last frame, each in [0, MAX_DRIFT].
+
+    Raises:
+        ConfigError: ``frames``, ``seed`` or ``drift`` out of range (NaN and infinity included).
     """
 
     def __init__(self, config: SynthConfig, frames: int, seed: int, drift: tuple[float, float] = (0.0, 0.0)):
-        if frames < 1:
-            raise ValueError("need at least one frame")
+        if not 1 <= frames <= MAX_FRAMES:
+            raise ConfigError("frames", f"must be from 1 to {MAX_FRAMES}, got {frames}")
+        seed = check_seed(seed)
+        if len(drift) != 2 or not all(
+            math.isfinite(v) and 0 <= v <= limit for v, limit in zip(drift, MAX_DRIFT, strict=False)
+        ):
+            raise ConfigError(
+                "drift",
+                f"must be two sizes, 0 to {MAX_DRIFT[0]:g} cm and 0 to {MAX_DRIFT[1]:g}°, got {tuple(drift)}",
+            )
         self.config, self.n_frames, self.seed = config, frames, seed
         rng = np.random.default_rng(seed)
         self.T_cam_lidar = reference_extrinsic(config.extrinsic, rng)
@@ -145,7 +165,7 @@ class Synthesizer:
             return
         global _WORKER_SYNTH
         _WORKER_SYNTH = self
-        with multiprocessing.get_context("fork").Pool(workers) as pool:
+        with multiprocessing.get_context("fork").Pool(workers, initializer=_quiet_worker) as pool:
             yield from pool.imap(_render_in_worker, range(self.n_frames), chunksize=2)
 
     def meta(self) -> dict:
@@ -186,6 +206,15 @@ _WORKER_SYNTH: Synthesizer | None = None
 
 def _render_in_worker(i: int) -> SyntheticFrame:
     return _WORKER_SYNTH.render(i)
+
+
+def _quiet_worker() -> None:
+    """A renderer leaves Ctrl-C to the main process, which ends the pool, and ends at once on
+    SIGTERM: no traceback from every worker, and the caller's clean-up runs in the main process."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def write_sequence(

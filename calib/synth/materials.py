@@ -59,6 +59,10 @@ MATERIALS: tuple[Material, ...] = (
 )
 
 _INDEX = {m.name: i for i, m in enumerate(MATERIALS)}
+
+# What each noise lattice is for: a world's lattices are keyed ``(seed, purpose, index)``, never by
+# adding offsets to the seed (seed 250 + material 6 would be seed 256's material 0)
+_TEXTURE, _BARE_SOIL, _GRAIN, _CLOUDS = 1, 2, 3, 4
 _SOIL = MATERIALS[_INDEX["soil"]]  # bare patches in grass look and reflect like soil
 _GLASS_REFLECTANCE = 0.03  # facade windows: most of the beam passes or mirrors away
 
@@ -97,7 +101,7 @@ def _windows(m: Material, p: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 def _bare_soil(m: Material, p: np.ndarray, seed: int) -> np.ndarray:
     """Patches of bare soil in grass: large, low-frequency blobs."""
-    return fbm(p, 6.0 * m.scale, 2, seed + 101) > 0.58
+    return fbm(p, 6.0 * m.scale, 2, (seed, _BARE_SOIL, 0)) > 0.58
 
 
 def surface(
@@ -113,6 +117,7 @@ def surface(
     Args:
         material: ``(N,)`` indices into :data:`MATERIALS` (all valid).
         points: ``(N, 3)`` world coordinates. normals: ``(N, 3)``. instance: ``(N,)``.
+        seed: the world's seed, an integer in [0, 2³²).
         color: compute the albedo too (the LiDAR needs only reflectance).
 
     Returns:
@@ -135,7 +140,7 @@ def surface(
         if not color:
             continue
         q = p * (1.0, 1.0, 0.15) if m.pattern == "streaks" else p
-        w = fbm(q, m.scale, 3, seed + index)[:, None]
+        w = fbm(q, m.scale, 3, (seed, _TEXTURE, int(index)))[:, None]
         if m.pattern in ("paint", "facade"):
             base = _instance_color(inst, 0.3)
             c = base * (0.9 + 0.2 * w) if m.pattern == "paint" else (0.7 * base + 0.3 * np.asarray(m.color))
@@ -147,7 +152,7 @@ def surface(
             bare = (1 - w) * np.asarray(_SOIL.color) + w * np.asarray(_SOIL.color2)
             c = np.where(mask[:, None], bare, c)
         # Fine grain (a few centimetres) so every surface carries trackable texture
-        rgb[sel] = c * (0.75 + 0.5 * value_noise(p, 0.03, seed + 7))[:, None]
+        rgb[sel] = c * (0.75 + 0.5 * value_noise(p, 0.03, (seed, _GRAIN, 0)))[:, None]
     return rgb, reflectance
 
 
@@ -159,7 +164,8 @@ def sky(directions: np.ndarray, sun: np.ndarray, seed: int = 0) -> np.ndarray:
     rgb = horizon + (zenith - horizon) * np.sqrt(up)[:, None]
     glow = np.clip(directions @ sun, 0.0, 1.0) ** 64
     plane = directions[:, :2] / np.maximum(up, 0.05)[:, None] * 500.0
-    cloud = np.clip((fbm(np.column_stack([plane, np.zeros(len(plane))]), 400.0, 3, seed) - 0.5) * 3, 0, 1)
+    cloud = fbm(np.column_stack([plane, np.zeros(len(plane))]), 400.0, 3, (seed, _CLOUDS, 0))
+    cloud = np.clip((cloud - 0.5) * 3, 0, 1)
     cloud *= np.clip((up - 0.03) / 0.12, 0, 1)  # fade out towards the horizon, where they would smear
     rgb = rgb * (1 - cloud[:, None]) + 0.95 * cloud[:, None]
     return rgb + glow[:, None] * 0.5

@@ -9,30 +9,47 @@ __all__ = ["fbm", "value_noise"]
 
 _TABLE_SIZE = 1 << 16
 _PRIMES = np.array([73856093, 19349663, 83492791], dtype=np.int64)
+_WORD = 1 << 32
+
+Key = int | tuple[int, ...]
+"""A lattice's seed: an integer, or a tuple of them (``(seed, purpose, index)``), each in [0, 2³²)."""
 
 
-def _table(seed: int) -> np.ndarray:
-    return np.random.default_rng([seed, 0x5EED]).random(_TABLE_SIZE, dtype=np.float32)
+def _key(seed: Key) -> tuple[int, ...]:
+    key = tuple(int(k) for k in seed) if isinstance(seed, tuple) else (int(seed),)
+    if not all(0 <= k < _WORD for k in key):
+        raise ValueError(f"noise seeds are integers in [0, 2^32), got {seed!r}")
+    return key
 
 
-_TABLES: dict[int, np.ndarray] = {}
+def _table(key: tuple[int, ...]) -> np.ndarray:
+    # the length goes first, so (a, b) and (a, b, 0) differ (a SeedSequence pads with zeros)
+    return np.random.default_rng([0x5EED, len(key), *key]).random(_TABLE_SIZE, dtype=np.float32)
 
 
-def value_noise(points: np.ndarray, scale: float, seed: int = 0) -> np.ndarray:
+_TABLES: dict[tuple[int, ...], np.ndarray] = {}
+_MAX_TABLES = 512  # 256 KB each; a long run over many seeds starts the cache afresh
+
+
+def value_noise(points: np.ndarray, scale: float, seed: Key = 0) -> np.ndarray:
     """Smooth lattice noise: random values on a cubic lattice of spacing ``scale``, blended
     trilinearly with a smoothstep.
 
     Args:
         points: ``(N, 3)`` world coordinates in metres.
         scale: lattice spacing in metres (the size of a blob).
-        seed: picks the random lattice.
+        seed: picks the random lattice: an integer or a tuple of integers, each in [0, 2³²);
+            distinct keys give independent lattices.
 
     Returns:
         ``(N,)`` float32 in ``[0, 1]``.
     """
-    table = _TABLES.get(seed)
+    key = _key(seed)
+    table = _TABLES.get(key)
     if table is None:
-        table = _TABLES.setdefault(seed, _table(seed))
+        if len(_TABLES) >= _MAX_TABLES:
+            _TABLES.clear()
+        table = _TABLES.setdefault(key, _table(key))
     p = np.asarray(points, dtype=np.float64) / scale
     cell = np.floor(p)
     f = (p - cell).astype(np.float32)
@@ -51,16 +68,18 @@ def value_noise(points: np.ndarray, scale: float, seed: int = 0) -> np.ndarray:
     return out
 
 
-def fbm(points: np.ndarray, scale: float, octaves: int = 3, seed: int = 0) -> np.ndarray:
-    """Fractal sum of :func:`value_noise` octaves, each half the size and half the weight.
+def fbm(points: np.ndarray, scale: float, octaves: int = 3, seed: Key = 0) -> np.ndarray:
+    """Fractal sum of :func:`value_noise` octaves, each half the size and half the weight; octave
+    ``o`` uses the lattice ``(*seed, o)``, so no two keys share an octave.
 
     Returns:
         ``(N,)`` float32 in ``[0, 1]``.
     """
+    key = _key(seed)
     total = np.zeros(len(points), dtype=np.float32)
     weight, norm = 1.0, 0.0
     for octave in range(octaves):
-        total += weight * value_noise(points, scale / 2**octave, seed + octave)
+        total += weight * value_noise(points, scale / 2**octave, (*key, octave))
         norm += weight
         weight *= 0.5
     return total / norm

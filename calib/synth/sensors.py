@@ -15,10 +15,10 @@ __all__ = ["CameraConfig", "LidarConfig", "camera_rays", "lidar_rays"]
 class CameraConfig(BaseModel):
     """Pinhole camera; the defaults are KITTI's colour camera at half resolution."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    width: int = Field(624, gt=0)
-    height: int = Field(188, gt=0)
+    width: int = Field(624, gt=0, le=8192)
+    height: int = Field(188, gt=0, le=8192)
     fx: float = Field(360.8, gt=0)
     fy: float = Field(360.8, gt=0)
     cx: float = 304.8
@@ -32,12 +32,12 @@ class CameraConfig(BaseModel):
 class LidarConfig(BaseModel):
     """Spinning multi-beam LiDAR; the defaults are a 64-beam HDL-64E-like pattern."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    beams: int = Field(64, gt=0)
-    elevation_max_deg: float = 2.0
-    elevation_min_deg: float = -24.9
-    azimuth_step_deg: float = Field(0.2, gt=0, le=10)
+    beams: int = Field(64, gt=0, le=1024)
+    elevation_max_deg: float = Field(2.0, ge=-90, le=90)
+    elevation_min_deg: float = Field(-24.9, ge=-90, le=90)
+    azimuth_step_deg: float = Field(0.2, ge=0.01, le=10)
     range_noise_m: float = Field(0.01, ge=0)
     max_range_m: float = Field(120.0, gt=0)
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 
-from calib.errors import DataError
+from calib.errors import ConfigError
 from calib.synth.sensors import CameraConfig, LidarConfig
 from calib.yaml_io import DEFAULTS, read_yaml, validate
 
@@ -15,15 +15,15 @@ __all__ = ["SynthConfig", "load_synth_config"]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class TimingConfig(_Strict):
     """When each sensor samples the world."""
 
-    rate_hz: float = Field(10.0, gt=0)
-    camera_offset_s: float = Field(0.0, description="camera stamp minus LiDAR stamp")
-    lidar_period_s: float = Field(0.1, gt=0, description="one LiDAR revolution")
+    rate_hz: float = Field(10.0, gt=0, le=1000)
+    camera_offset_s: float = Field(0.0, ge=-10, le=10, description="camera stamp minus LiDAR stamp")
+    lidar_period_s: float = Field(0.1, gt=0, le=10, description="one LiDAR revolution")
     motion_distortion: bool = Field(False, description="cast each beam from the pose at its own time")
 
 
@@ -50,7 +50,7 @@ class ExtrinsicConfig(_Strict):
     camera_position_m: tuple[float, float, float] = Field(
         (0.27, 0.06, -0.08), description="camera centre in the LiDAR frame (x fwd, y left, z up)"
     )
-    camera_pitch_deg: float = Field(0.0, description="downward tilt of the optical axis")
+    camera_pitch_deg: float = Field(0.0, gt=-90, lt=90, description="downward tilt of the optical axis")
     jitter_cm: float = Field(3.0, ge=0)
     jitter_deg: float = Field(1.0, ge=0)
 
@@ -79,7 +79,7 @@ class VineyardLayout(_Strict):
     post_spacing_m: float = Field(6.0, gt=1)
     cordon_height_m: float = Field(0.9, gt=0.2)
     canopy_top_m: float = Field(1.9, gt=0.5)
-    wire_heights_m: tuple[float, ...] = (0.9, 1.3, 1.7)
+    wire_heights_m: tuple[PositiveFloat, ...] = (0.9, 1.3, 1.7)
     pipe_height_m: float = Field(0.4, gt=0)
     leaves_per_shoot: int = Field(14, ge=0)
     leaf_size_m: float = Field(0.12, gt=0)
@@ -90,12 +90,12 @@ class UrbanLayout(_Strict):
     parking_width_m: float = Field(2.4, ge=0)
     sidewalk_width_m: float = Field(3.0, gt=0.5)
     kerb_height_m: float = Field(0.12, ge=0)
-    block_length_m: tuple[float, float] = (50.0, 90.0)
+    block_length_m: tuple[PositiveFloat, PositiveFloat] = (50.0, 90.0)
     turn_radius_m: float = Field(11.0, gt=3)
-    building_height_m: tuple[float, float] = (6.0, 20.0)
+    building_height_m: tuple[PositiveFloat, PositiveFloat] = (6.0, 20.0)
     parked_car_fraction: float = Field(0.5, ge=0, le=1)
     moving_cars: int = Field(6, ge=0)
-    moving_speed_mps: tuple[float, float] = (6.0, 11.0)
+    moving_speed_mps: tuple[PositiveFloat, PositiveFloat] = (6.0, 11.0)
     tree_spacing_m: float = Field(14.0, gt=2)
 
 
@@ -135,7 +135,7 @@ def load_synth_config(world: str | None = None, path: Path | None = None, **over
     path = Path(path)
     data = read_yaml(path)
     if world is not None and data.setdefault("world", world) != world:
-        raise DataError(path, f"describes world {data['world']!r}, not {world!r}")
+        raise ConfigError(path, f"describes world {data['world']!r}, not {world!r}")
     for key, value in overrides.items():
         data[key] = {**data.get(key, {}), **value}
     return validate(SynthConfig, data, path)

@@ -10,8 +10,8 @@ from typing import Annotated
 
 import typer
 
-from calib.errors import SupportnetError
-from supportnet.cli.options import Overwrite
+from calib.errors import ConfigError, SupportnetError
+from supportnet.cli.options import Camera, Overwrite, in_range, seed_of
 
 app = typer.Typer(
     name="supportnet",
@@ -31,10 +31,12 @@ def synth(
     world: Annotated[World, typer.Option(help="Which synthetic world.")],
     out: Annotated[Path, typer.Option(help="Dataset root (KITTI odometry layout).")],
     frames: Annotated[int, typer.Option(help="Number of frames (10 Hz by default).")] = 100,
-    seed: Annotated[int, typer.Option(help="Seed: world, extrinsic and noise all follow from it.")] = 0,
+    seed: Annotated[
+        int, typer.Option(help="Seed, 0 to 2^32 - 1: world, extrinsic and noise all follow from it.")
+    ] = 0,
     sequence: Annotated[str, typer.Option(help="Sequence folder name under sequences/.")] = "00",
     config: Annotated[
-        Path | None, typer.Option(help="World config (default: configs/synth/<world>.yaml).")
+        Path | None, typer.Option(help="World config (default: the packaged <world>.yaml).")
     ] = None,
     workers: Annotated[int, typer.Option(help="Processes rendering frames in parallel.")] = 2,
     drift: Annotated[
@@ -71,18 +73,17 @@ def info(
     sequence: Annotated[
         str | None, typer.Option(help="Sequence (KITTI odometry) or drive (KITTI raw).")
     ] = None,
-    camera: Annotated[int, typer.Option(help="KITTI camera index (2 = left colour).")] = 2,
+    camera: Camera = None,
     check_all: Annotated[
         bool, typer.Option("--check-all", help="Read every frame, not only the first.")
     ] = False,
 ) -> None:
     """What a dataset holds (layout, frames, resolution, intrinsics, extrinsic, time span,
     label classes) and the problems found. Exit code 2 when there are problems."""
-    from rich.console import Console
-
     from supportnet.cli.cmd_info import info as run_info
+    from supportnet.cli.console import make_console
 
-    raise typer.Exit(run_info(data, sequence, camera, check_all, Console()))
+    raise typer.Exit(run_info(data, sequence, camera, check_all, make_console(stderr=False)))
 
 
 class MatcherName(str, Enum):
@@ -98,9 +99,16 @@ def maps(
     matcher: Annotated[
         MatcherName | None, typer.Option(help="Stage 2 matcher (default: the config's).")
     ] = None,
-    sigma: Annotated[float | None, typer.Option(help="σ of Eq. 2 in pixels (default: the config's).")] = None,
-    config: Annotated[Path | None, typer.Option(help="Maps config (default: configs/maps.yaml).")] = None,
+    sigma: Annotated[
+        float | None,
+        typer.Option(
+            help="σ of Eq. 2 in pixels, 2 to 100 (default: the config's).",
+            callback=in_range("--sigma", 2, 100),
+        ),
+    ] = None,
+    config: Annotated[Path | None, typer.Option(help="Maps config (default: packaged maps.yaml).")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue an interrupted run.")] = False,
+    camera: Camera = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Stage 3 offline: per-frame and whole-sequence support, coverage and agreement maps from
@@ -109,7 +117,7 @@ def maps(
     from supportnet.cli.cmd_maps import run_maps
 
     cfg = load_maps_config(config, matcher=matcher.value if matcher else None, sigma_px=sigma)
-    run_maps(data, sequence, out, cfg, overwrite, resume)
+    run_maps(data, sequence, out, cfg, overwrite, resume, camera=camera)
 
 
 class ClassSourceName(str, Enum):
@@ -134,11 +142,14 @@ def analyze(
         ClassSourceName,
         typer.Option(help="Where classes come from: point labels, image label PNGs, or Excess Green + Otsu."),
     ] = ClassSourceName.auto,
-    stride: Annotated[int, typer.Option(help="Analyse every stride-th frame.")] = 1,
+    stride: Annotated[
+        int, typer.Option(help="Analyse every stride-th frame.", callback=in_range("--stride", 1, 100_000))
+    ] = 1,
     matcher: Annotated[
         MatcherName | None, typer.Option(help="Stage 2 matcher (default: the config's).")
     ] = None,
-    config: Annotated[Path | None, typer.Option(help="Maps config (default: configs/maps.yaml).")] = None,
+    config: Annotated[Path | None, typer.Option(help="Maps config (default: packaged maps.yaml).")] = None,
+    camera: Camera = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Experiments 1 and 2: class-wise mean and median |Δu|, |Δv| of the matcher under the reference
@@ -148,7 +159,7 @@ def analyze(
 
     cfg = load_maps_config(config, matcher=matcher.value if matcher else None)
     names = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else None
-    run_analyze(data, names, out, cfg, maps, classes.value, stride, overwrite)
+    run_analyze(data, names, out, cfg, maps, classes.value, stride, overwrite, camera=camera)
 
 
 @app.command()
@@ -160,12 +171,13 @@ def predict(
     maps: Annotated[
         Path | None, typer.Option(help="Offline maps of this sequence: score the predictions against them.")
     ] = None,
+    camera: Camera = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Stage 3 online: the learned support map of every frame (onnxruntime)."""
     from supportnet.cli.cmd_predict import run_predict
 
-    run_predict(model, data, sequence, out, maps, overwrite)
+    run_predict(model, data, sequence, out, maps, overwrite, camera=camera)
 
 
 @app.command("init-calib")
@@ -174,8 +186,9 @@ def init_calib(
     out: Annotated[Path, typer.Option(help="Folder to write.")],
     sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
     config: Annotated[
-        Path | None, typer.Option(help="Stage 1 config (default: configs/init_calib.yaml).")
+        Path | None, typer.Option(help="Stage 1 config (default: the packaged init_calib.yaml).")
     ] = None,
+    camera: Camera = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Stage 1: the initial extrinsic from motion (KISS-ICP, OpenCV visual odometry, time sync,
@@ -183,7 +196,7 @@ def init_calib(
     from calib.init.motion_init import load_stage1_config
     from supportnet.cli.cmd_init_calib import run_init_calib
 
-    run_init_calib(data, sequence, out, load_stage1_config(config), overwrite)
+    run_init_calib(data, sequence, out, load_stage1_config(config), overwrite, camera=camera)
 
 
 @app.command()
@@ -197,10 +210,19 @@ def calibrate(
     init: Annotated[
         str, typer.Option(help="Initial extrinsic: perturb:CM,DEG of the reference, file:PATH, stage1.")
     ] = "perturb:10,2",
-    runs: Annotated[int, typer.Option(help="Repeat with new initial draws (paired across supports).")] = 1,
-    seed: Annotated[int, typer.Option(help="Seed of the initial draws and the sampling.")] = 0,
+    runs: Annotated[
+        int,
+        typer.Option(
+            help="Repeat with new initial draws (paired across supports), 1 to 1000.",
+            callback=in_range("--runs", 1, 1000),
+        ),
+    ] = 1,
+    seed: Annotated[
+        int,
+        typer.Option(help="Seed of the initial draws and the sampling, 0 to 2^32 - 1.", callback=seed_of()),
+    ] = 0,
     config: Annotated[
-        Path | None, typer.Option(help="Calibrate config (default: configs/calibrate.yaml).")
+        Path | None, typer.Option(help="Calibrate config (default: the packaged calibrate.yaml).")
     ] = None,
     online: Annotated[
         bool,
@@ -210,26 +232,41 @@ def calibrate(
             "uncertainty and a drift alarm, per window in CSV/JSON and a plot.",
         ),
     ] = False,
+    camera: Camera = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Stage 4: support-guided (or uniform) sampling and weighted SE(3) refinement, in passes."""
     from calib.refine.passes import load_calibrate_config
     from supportnet.cli.cmd_calibrate import run_calibrate
 
+    if online and runs != 1:
+        raise ConfigError(
+            "--runs", "--online calibrates one stream from one start; run it again with another --seed"
+        )
     cfg = load_calibrate_config(config)
     if online:
         from supportnet.cli.cmd_online import run_online
 
-        run_online(data, sequence, support, init, out, cfg, seed, overwrite)
+        run_online(data, sequence, support, init, out, cfg, seed, overwrite, camera=camera)
         return
-    run_calibrate(data, sequence, support, init, out, cfg, runs, seed, overwrite)
+    run_calibrate(data, sequence, support, init, out, cfg, runs, seed, overwrite, camera=camera)
 
 
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder.")] = Path("demo_out"),
-    frames: Annotated[int, typer.Option(help="Frames per synthetic sequence.")] = 40,
-    runs: Annotated[int, typer.Option(help="Paired Stage 4 runs per support.")] = 3,
+    frames: Annotated[
+        int,
+        typer.Option(
+            help="Frames per synthetic sequence, 1 to 10000.", callback=in_range("--frames", 1, 10_000)
+        ),
+    ] = 40,
+    runs: Annotated[
+        int,
+        typer.Option(
+            help="Paired Stage 4 runs per support, 1 to 1000.", callback=in_range("--runs", 1, 1000)
+        ),
+    ] = 3,
     overwrite: Overwrite = False,
 ) -> None:
     """The whole pipeline on a small vineyard and urban set: offline maps, class-wise residuals,
@@ -271,8 +308,20 @@ def _register_plugins() -> None:
         entry.load()(app)
 
 
+_main_pid = {"pid": None}
+
+
 def _terminate(signum: int, frame: object) -> None:
-    """SIGTERM unwinds like Ctrl-C, so every output folder in progress is removed."""
+    """SIGTERM unwinds like Ctrl-C, so every output folder in progress is removed. A forked worker
+    (synth's renderers) ends quietly instead of printing a traceback: the main process, which got
+    the signal too or ends its workers, cleans up."""
+    import os
+    import signal
+
+    if _main_pid["pid"] not in (None, os.getpid()):
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+        return
     raise KeyboardInterrupt
 
 
@@ -280,8 +329,10 @@ def main() -> None:
     """Console entry point: an error supportnet raises on purpose (data, config, numerical) and
     an operating-system error on a named file end in one line on stderr and exit code 2
     (``--debug``: the traceback); Ctrl-C and SIGTERM abort (code 1) and leave nothing behind."""
+    import os
     import signal
 
+    _main_pid["pid"] = os.getpid()
     signal.signal(signal.SIGTERM, _terminate)
     _register_plugins()
     try:

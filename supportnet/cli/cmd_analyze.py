@@ -18,7 +18,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from calib.data import open_dataset
+from calib.data import Sequence, open_dataset
 from calib.data.kitti_odometry import sequence_names
 from calib.errors import DataError, SupportnetError
 from calib.projection import pixel_lookup
@@ -31,8 +31,10 @@ from calib.support.class_residuals import (
     classwise_average,
     point_classes,
 )
+from calib.support.map_files import check_maps_fingerprint, load_sequence_maps
 from calib.support.support_maps import MapsConfig
-from supportnet.cli.output_dir import atomic_output, progress_bar, resolved_config, write_json
+from supportnet.cli.console import make_console
+from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.report.pictures import class_residual_chart
 from supportnet.runtime.matcher_factory import build_matcher
 
@@ -41,12 +43,14 @@ __all__ = ["run_analyze"]
 MIN_POINTS = 50  # classes with fewer residuals are listed but left out of the ranking and chart
 
 
-def _sequence_support(maps: Path, sequence: str, n_sequences: int) -> np.ndarray:
+def _sequence_support(maps: Path, sequence: str, n_sequences: int, seq: Sequence) -> np.ndarray:
     """The whole-sequence support map of ``sequence`` from ``maps``: a maps folder itself (one
-    sequence analysed) or a folder holding one maps folder per sequence, named after it."""
+    sequence analysed) or a folder holding one maps folder per sequence, named after it; refused
+    when made from another dataset than ``seq``."""
     for folder in (maps / sequence, maps) if n_sequences == 1 else (maps / sequence,):
         if (folder / "sequence.npz").is_file():
-            return np.load(folder / "sequence.npz")["support"]
+            check_maps_fingerprint(folder, seq)
+            return load_sequence_maps(folder)["support"]
     raise DataError(maps, f"holds no support maps for sequence {sequence} (expected {maps / sequence})")
 
 
@@ -74,13 +78,15 @@ def run_analyze(
     stride: int = 1,
     overwrite: bool = False,
     console: Console | None = None,
+    camera: str | None = None,
 ) -> dict:
     """Match every ``stride``-th frame under the reference and summarise residuals by class.
 
     Returns:
         What ``classes.json`` holds.
     """
-    console = console or Console(stderr=True)
+    console = console or make_console()
+    claim_output(Path(out), overwrite, [data, maps])
     matcher = build_matcher(config.matcher, config.edge, config.flow_model)
     if stride < 1:
         raise DataError("--stride", f"must be at least 1, got {stride}")
@@ -92,10 +98,10 @@ def run_analyze(
     for sequence in sequences:
         key = sequence or data.name
         residuals = ClassResiduals()
-        with open_dataset(data, sequence=sequence) as seq:
+        with open_dataset(data, sequence=sequence, camera=camera) as seq:
             if seq.calibration.T_cam_lidar is None:
                 raise DataError(data, f"sequence {key} has no reference calibration to analyse under")
-            support_map = _sequence_support(Path(maps), key, len(sequences)) if maps else None
+            support_map = _sequence_support(Path(maps), key, len(sequences), seq) if maps else None
             indices = range(0, len(seq), stride)
             with progress_bar(f"analyze {seq.name}", console) as progress:
                 task = progress.add_task("analyze", total=len(indices))
@@ -139,7 +145,7 @@ def run_analyze(
         },
         "runtime_s": time.perf_counter() - start,
     }
-    with atomic_output(out, overwrite) as tmp:
+    with atomic_output(out, overwrite, [data, maps], command="analyze") as tmp:
         write_json(tmp / "classes.json", result)
         with open(tmp / "classes.csv", "w", newline="") as f:
             writer = csv.writer(f)
@@ -151,7 +157,8 @@ def run_analyze(
             charts.update({f"residuals_by_class_{k}.png": (k, acc) for k, acc in per_sequence.items()})
         for name, (key, acc) in charts.items():
             stats = [s for s in acc.stats() if s.points >= MIN_POINTS]
-            title = f"{data.name} {key}: matcher residuals under the reference"
+            which = ", ".join(per_sequence) if key == "all" else key  # never "all": say which sequences
+            title = f"{Path(data).resolve().name}, sequence {which}: matcher residuals under the reference"
             class_residual_chart(stats, tmp / name, title)
         (tmp / "config.yaml").write_text(resolved_config(config))
     _print_table(overall, console)

@@ -9,14 +9,14 @@
 5. The conventions checked on every real fixture (when ``../shared/realdata`` is found): contour
    alignment under the reference against 1° perturbations, with overlays.
 
-Writes ``report.md`` (tables, Fig. 1-style overlays, support maps, class-wise charts) with every
-stage's own output folder beside it.
+Writes ``report.md`` and the self-contained ``report.html`` (the same document: tables, figures
+with colour bars and captions, a comment on every surprising number; :mod:`supportnet.report.demo_page`),
+the figures under ``figures/``, and every stage's own output folder beside them.
 """
 
 from __future__ import annotations
 
 import contextlib
-import re
 import tempfile
 import time
 from pathlib import Path
@@ -28,17 +28,28 @@ from rich.progress import track
 from rich.table import Table
 
 from calib.data import Frame, open_dataset
-from calib.data.io import write_image
 from calib.data.real_fixtures import real_scenes, realdata_root
 from calib.features import contour_check
 from calib.geometry import perturb
-from calib.projection import project_scan
-from supportnet.cli.output_dir import atomic_output, write_json
-from supportnet.report.pictures import draw_projection
+from calib.projection import ProjectedScan, project_scan
+from supportnet.cli.console import make_console
+from supportnet.cli.output_dir import atomic_output, claim_output, write_json
+from supportnet.report.demo_page import (
+    SceneCheck,
+    WorldRun,
+    build_demo_page,
+    caption_colour_problems,
+    class_chart_figure,
+    projection_figure,
+    support_figure,
+    write_demo_page,
+)
+from supportnet.report.document import Document, Figure, to_markdown
 
 __all__ = ["run_demo", "synthetic_scenes"]
 
 DEMO_SEED = 9
+SEQUENCE = "09"
 DRIVES = {"vineyard": {}, "urban": {"start_before_turn_m": 1.0}}
 """The vineyard drives down a row (Stage 1 refuses it, and says why); the urban car turns a corner."""
 
@@ -57,13 +68,15 @@ def synthetic_scenes(workdir: Path, frames: int = 3) -> list[tuple[str, Frame, n
 
 
 def run_demo(out: Path, overwrite: bool = False, frames: int = 40, runs: int = 3) -> None:
-    console = Console()
+    claim_output(Path(out), overwrite)
+    console = make_console(stderr=False)
     realdata = realdata_root()
     start = time.perf_counter()
-    with atomic_output(out, overwrite) as tmp, tempfile.TemporaryDirectory() as work:
-        pipeline = [
-            run_pipeline(world, tmp / world, frames, runs, console) for world in ("vineyard", "urban")
-        ]
+    with atomic_output(out, overwrite, command="demo") as tmp, tempfile.TemporaryDirectory() as work:
+        worlds = [run_pipeline(world, tmp / world, frames, runs, console) for world in ("vineyard", "urban")]
+        with console.status("drawing the figures"):
+            for world in worlds:
+                world_figures(tmp, world)
         with console.status("generating synthetic sequences"):
             scenes = synthetic_scenes(Path(work))
         if realdata is not None:
@@ -73,10 +86,9 @@ def run_demo(out: Path, overwrite: bool = False, frames: int = 40, runs: int = 3
         table = Table(title="Contour alignment: reference vs 1° perturbations (higher = on image edges)")
         for col in ("scene", "contour pts", "reference", "perturbed mean", "ratio"):
             table.add_column(col, justify="left" if col == "scene" else "right")
-        results = {}
+        checks = []
         for name, frame, ring in track(scenes, description="checking conventions", console=console):
             check = contour_check(frame, ring)
-            results[name] = check
             table.add_row(
                 name,
                 str(check["contour_points"]),
@@ -84,23 +96,24 @@ def run_demo(out: Path, overwrite: bool = False, frames: int = 40, runs: int = 3
                 f"{check['perturbed_mean']:.3f}",
                 f"{check['ratio']:.2f}",
             )
-            T = frame.calibration.T_cam_lidar
-            slug = name.replace(" ", "_")
-            for label, T_used in (
-                ("reference", T),
-                ("perturbed_1deg", perturb(T, 0.0, 1.0, torch.Generator().manual_seed(1))),
-            ):
-                projected = project_scan(frame.points, T_used, frame.K, frame.image_size)
-                write_image(tmp / f"overlay_{slug}_{label}.png", draw_projection(frame.image, projected))
+            checks.append(SceneCheck(name, check, convention_figure(tmp, name, frame)))
         console.print(table)
-        write_json(tmp / "contour_alignment.json", results)
-        report = _report(pipeline, results, frames, runs, time.perf_counter() - start)
-        (tmp / "report.md").write_text(report)
-    console.print(_stage4_table(pipeline), markup=False, highlight=False)
-    console.print(f"report written to [bold]{out / 'report.md'}[/] in {time.perf_counter() - start:.0f} s")
+        write_json(tmp / "contour_alignment.json", {c.name: c.result for c in checks})
+        doc = build_demo_page(
+            worlds, checks, runs, time.perf_counter() - start, str(realdata) if realdata else None
+        )
+        for problem in caption_colour_problems(tmp, doc.figures()):
+            console.print(f"report: {problem}", markup=False, highlight=False, soft_wrap=True)
+        write_demo_page(doc, tmp)
+    stage4 = next(s for s in doc.sections if s.title.startswith("Stage 4"))
+    console.print(to_markdown(Document("Stage 4", blocks=stage4.blocks[:1])), markup=False, highlight=False)
+    console.print(
+        f"report written to [bold]{out / 'report.html'}[/] and [bold]{out / 'report.md'}[/] "
+        f"in {time.perf_counter() - start:.0f} s"
+    )
 
 
-def run_pipeline(world: str, out: Path, frames: int, runs: int, console: Console) -> dict:
+def run_pipeline(world: str, out: Path, frames: int, runs: int, console: Console) -> WorldRun:
     """Stages 1 to 4 on a fresh ``frames``-frame sequence of ``world``; their folders under ``out``."""
     from calib.errors import NumericalError
     from calib.init.motion_init import load_stage1_config
@@ -119,17 +132,19 @@ def run_pipeline(world: str, out: Path, frames: int, runs: int, console: Console
         data = Path("data")
         with console.status(f"synthesising {frames} {world} frames"):
             synth = Synthesizer(load_synth_config(world, drive=DRIVES[world]), frames, DEMO_SEED)
-            write_sequence(synth, data, "09", workers=2)
-        maps = run_maps(data, "09", Path("maps"), load_maps_config(), console=console)
-        run_analyze(data, ["09"], Path("classes"), load_maps_config(), maps=maps, console=console)
+            write_sequence(synth, data, SEQUENCE, workers=2)
+        maps = run_maps(data, SEQUENCE, Path("maps"), load_maps_config(), console=console)
+        classes = run_analyze(
+            data, [SEQUENCE], Path("classes"), load_maps_config(), maps=maps, console=console
+        )
         try:
-            stage1 = run_init_calib(data, "09", Path("stage1"), load_stage1_config(), console=console)
+            stage1 = run_init_calib(data, SEQUENCE, Path("stage1"), load_stage1_config(), console=console)
         except NumericalError as exc:  # the motion cannot tell: the report says what, and the demo goes on
             stage1 = {"refused": str(exc)}
             console.print(f"Stage 1: {exc}", markup=False, highlight=False, soft_wrap=True)
         stage4 = run_calibrate(
             data,
-            "09",
+            SEQUENCE,
             "uniform,offline:maps,onnx",
             "perturb:10,2",
             Path("stage4"),
@@ -137,85 +152,108 @@ def run_pipeline(world: str, out: Path, frames: int, runs: int, console: Console
             runs,
             console=console,
         )
-    return {"world": world, "stage1": stage1, "stage4": stage4}
+    return WorldRun(world, out.name, SEQUENCE, DEMO_SEED, frames, stage1, stage4, classes)
 
 
-def _stage4_table(pipeline: list[dict]) -> str:
-    lines = [
-        "| world | support | translation cm mean / median | rotation ° mean / median | beats uniform t / r |",
-        "|---|---|---|---|---|",
-    ]
-    for item in pipeline:
-        results, paired = item["stage4"]["results"], item["stage4"]["paired_vs_uniform"]
-        for name, r in results.items():
-            t, rot = r["summary"]["translation_cm"], r["summary"]["rotation_deg"]
-            label = {"uniform": "uniform", "onnx": "SGIS, predicted map"}.get(name, "SGIS, offline map")
-            wins = paired.get(name)
-            won = (
-                f"{wins['translation_wins']}/{wins['runs']}, {wins['rotation_wins']}/{wins['runs']}"
-                if wins
+def world_figures(root: Path, world: WorldRun) -> None:
+    """The figures of one world's run, under ``root / "figures"``, into ``world.figures``: the
+    class-wise chart, Stage 1's trajectories, each support map with its colour bar and each
+    support's overlay before and after Stage 4 (the first paired run, on the first frame it used)."""
+    from calib.refine.passes import load_calibrate_config
+    from calib.support.class_residuals import ClassStats
+    from supportnet.cli.cmd_analyze import MIN_POINTS
+    from supportnet.runtime.support_sources import resolve_support
+
+    w, folder = world.world, root / world.folder
+    stats = [ClassStats(**s) for s in world.classes["classes"]["all"] if s["points"] >= MIN_POINTS]
+    world.figures["classes"] = class_chart_figure(
+        root,
+        f"figures/{w}_residuals_by_class.png",
+        stats,
+        f"{world.label}: {world.classes.get('matcher', 'edge')} matcher residuals under the reference",
+        f"Residuals by class, {world.label}, under the reference extrinsic (the paper's Experiments 1 "
+        f"and 2; {world.classes.get('frames', '?')} frames).",
+    )
+    if "refused" not in world.stage1:
+        world.figures["trajectories"] = Figure(
+            f"{world.folder}/stage1/trajectories.png",
+            f"Stage 1 trajectories, {world.label}, in the camera-0 frame, from above (left) and from "
+            "the side (right): the blue line is LiDAR odometry (KISS-ICP), the orange dots are the "
+            "visual odometry keyframes, scaled and aligned by the hand–eye solve.",
+        )
+    results = world.stage4["results"]
+    first_run = {name: r["runs"][0] for name, r in results.items()}
+    index = next(iter(first_run.values()))["frame_indices"][0]
+    support_map = load_calibrate_config().support_map
+    maps = {}
+    with contextlib.chdir(folder), open_dataset(Path("data"), sequence=world.sequence) as seq:
+        frame = seq[int(index)]
+        for name, run in first_run.items():
+            slug = "".join(c if c.isalnum() else "_" for c in name).strip("_")
+            label = {"uniform": "uniform sampling", "onnx": "SGIS, predicted map"}.get(
+                name, "SGIS, offline map"
+            )
+            before, after = (np.array(run[k]) for k in ("initial_T_cam_lidar", "T_cam_lidar"))
+            e0, e1 = run.get("initial_error"), run.get("error")
+            errors = (
+                f" Error against the reference: {e0['translation_cm']:.1f} cm / {e0['rotation_deg']:.2f}° "
+                f"before, {e1['translation_cm']:.1f} cm / {e1['rotation_deg']:.2f}° after."
+                if e0 and e1
                 else ""
             )
-            lines.append(
-                f"| {item['world']} | {label} | {t['mean']:.2f} / {t['median']:.2f} | "
-                f"{rot['mean']:.3f} / {rot['median']:.3f} | {won} |"
+            world.figures[f"overlay:{name}"] = projection_figure(
+                root,
+                f"figures/{w}_overlay_{slug}.png",
+                [
+                    (
+                        "initial extrinsic (reference moved by 10 cm / 2 deg)",
+                        frame.image,
+                        _project(frame, before),
+                    ),
+                    (f"after Stage 4 with {label}", frame.image, _project(frame, after)),
+                ],
+                f"Stage 4 with {label}, {world.label}, frame {frame.index}: the scan under the initial "
+                f"extrinsic (top) and under the estimate (bottom), first paired run.{errors}",
             )
-    return "\n".join(lines)
+            if name == "uniform":
+                continue
+            values = resolve_support(name, support_map)(frame)
+            maps[name] = values
+            kind = (
+                "predicted by the shipped model from the image alone"
+                if name.startswith("onnx")
+                else ("offline, from the matcher under the reference over the whole sequence (Eq. 2)")
+            )
+            world.figures[f"support:{name}"] = support_figure(
+                root,
+                f"figures/{w}_support_{slug}.png",
+                frame.image,
+                values,
+                f"Support map `{name}`, {kind}; {world.label}, frame {frame.index}.",
+            )
+    offline = [v for k, v in maps.items() if k.startswith("offline")]
+    predicted = [v for k, v in maps.items() if k.startswith("onnx")]
+    if offline and predicted and offline[0].std() > 0 and predicted[0].std() > 0:
+        world.map_agreement = float(np.corrcoef(offline[0].ravel(), predicted[0].ravel())[0, 1])
 
 
-def _report(pipeline: list[dict], contours: dict, frames: int, runs: int, seconds: float) -> str:
-    """``report.md``: what the demo did, its tables, and the pictures to look at."""
-    lines = [
-        "# supportnet demo",
-        "",
-        f"{frames}-frame synthetic sequences (seed {DEMO_SEED}, held out from the shipped predictor), "
-        f"{runs} paired Stage 4 runs from a 10 cm / 2° error per support; {seconds:.0f} s in all.",
-        "",
-        "## Stage 4: uniform vs support-guided sampling",
-        "",
-        _stage4_table(pipeline),
-        "",
-    ]
-    for item in pipeline:
-        world, stage4 = item["world"], item["stage4"]
-        lines += [f"## {world}", "", "### Stage 1 (from motion)", ""]
-        stage1 = item["stage1"]
-        if "refused" in stage1:
-            lines += [f"Refused, with the reason: {stage1['refused']}", ""]
-        else:
-            e = stage1["error"]
-            weak = "; ".join(w["text"] for w in stage1["weak"]) or "none"
-            lines += [
-                f"Rotation error {e['rotation_deg']:.2f}°, translation {e['translation_cm']:.1f} cm "
-                f"(translation from the {stage1['translation_source']}); weak: {weak}.",
-                "",
-                f"![trajectories]({world}/stage1/trajectories.png)",
-                "",
-            ]
-        lines += ["### Overlays: initial error (red) and after Stage 4 (green)", ""]
-        for name in stage4["results"]:
-            slug = re.sub(r"[^A-Za-z0-9]+", "_", name).strip("_")
-            lines += [f"{name.split(':')[0]}: ![overlay]({world}/stage4/overlay_{slug}.png)", ""]
-            if name != "uniform":
-                lines += [
-                    f"support map ({name.split(':')[0]}): ![support]({world}/stage4/support_{slug}.png)",
-                    "",
-                ]
-        lines += [
-            "### Matcher residuals by class (Experiments 1 and 2)",
-            "",
-            f"![classes]({world}/classes/residuals_by_class.png)",
-            "",
-        ]
-    lines += [
-        "## Conventions on real data: contour alignment, reference vs 1° perturbations",
-        "",
-        "| scene | contour points | reference | perturbed mean | ratio |",
-        "|---|---|---|---|---|",
-    ]
-    lines += [
-        f"| {n} | {r['contour_points']} | {r['reference']:.3f} | {r['perturbed_mean']:.3f} | "
-        f"{r['ratio']:.2f} |"
-        for n, r in contours.items()
-    ]
-    return "\n".join(lines) + "\n"
+def _project(frame: Frame, T: np.ndarray) -> ProjectedScan:
+    return project_scan(frame.points, T, frame.K, frame.image_size)
+
+
+def convention_figure(root: Path, name: str, frame: Frame) -> Figure:
+    """The scan under the reference (top) and rotated by 1° (bottom), on the scene's image."""
+    T = frame.calibration.T_cam_lidar
+    T_off = perturb(T, 0.0, 1.0, torch.Generator().manual_seed(1))
+    slug = "".join(c if c.isalnum() else "_" for c in name)
+    return projection_figure(
+        root,
+        f"figures/conventions_{slug}.png",
+        [
+            ("reference extrinsic", frame.image, _project(frame, T)),
+            ("reference rotated by 1 deg", frame.image, _project(frame, T_off)),
+        ],
+        f"{name}: the scan under the reference extrinsic, read through its layout's convention (top), "
+        "and under the reference rotated by 1° (bottom); under the right convention depth edges meet "
+        "image edges.",
+    )

@@ -46,6 +46,8 @@ def describe(seq: Sequence, check_all: bool = False) -> dict:
     return {
         "name": seq.name,
         "layout": seq.layout,
+        "camera": seq.camera or None,
+        "fingerprint": seq.fingerprint(),
         "frames": len(seq),
         "image_size": first.image_size if first else seq.calibration.image_size,
         "points_first_frame": len(first.points) if first else None,
@@ -63,11 +65,16 @@ def describe(seq: Sequence, check_all: bool = False) -> dict:
     }
 
 
-def info(path: Path, sequence: str | None, camera: int, check_all: bool, console: Console) -> int:
+def info(path: Path, sequence: str | None, camera: str | None, check_all: bool, console: Console) -> int:
     """Print :func:`describe` of ``path``; returns the exit code.
 
+    Args:
+        camera: where the dataset has several: a KITTI index or a bag's image topic (``None``:
+            the layout's default).
+
     Raises:
-        DataError: after listing them, for the first problem found (exit code 2).
+        DataError: after listing them, for the first problem found (exit code 2): unpaired or
+            broken files, NaN or non-increasing time stamps, NaN poses, images of another size.
     """
     with open_dataset(path, sequence, camera=camera, strict=False) as seq:
         facts = describe(seq, check_all)
@@ -78,6 +85,8 @@ def info(path: Path, sequence: str | None, camera: int, check_all: bool, console
     size = facts["image_size"]
     table.add_row("data", f"{escape(str(path))}  (layout: {facts['layout']})")
     table.add_row("sequence", escape(facts["name"]))
+    if facts["camera"]:
+        table.add_row("camera", escape(facts["camera"]))
     table.add_row("frames", str(facts["frames"]))
     table.add_row("image", f"{size[1]} x {size[0]} (W x H)" if size else "unknown")
     table.add_row(
@@ -94,6 +103,7 @@ def info(path: Path, sequence: str | None, camera: int, check_all: bool, console
     table.add_row("point labels", classes or "none")
     table.add_row("image labels", "yes" if facts["image_labels"] else "none")
     table.add_row("poses", "ground truth present" if facts["poses"] else "none")
+    table.add_row("fingerprint", facts["fingerprint"])
     for note in facts["notes"]:
         table.add_row("note", escape(note))
     console.print(table)

@@ -19,7 +19,8 @@ from calib.data import open_dataset
 from calib.geometry import calibration_error
 from calib.init.motion_init import Stage1Config, Stage1Result, initial_calibration
 from calib.init.time_sync import interpolate_poses
-from supportnet.cli.output_dir import atomic_output, resolved_config, write_json
+from supportnet.cli.console import make_console
+from supportnet.cli.output_dir import atomic_output, claim_output, resolved_config, write_json
 
 __all__ = ["camera_trajectory", "run_init_calib"]
 
@@ -79,11 +80,16 @@ def run_init_calib(
     config: Stage1Config,
     overwrite: bool = False,
     console: Console | None = None,
+    camera: str | None = None,
 ) -> dict:
     """Stage 1 on one sequence; returns what ``result.json`` holds."""
-    console = console or Console(stderr=True)
+    console = console or make_console()
+    claim_output(Path(out), overwrite, [data])
     start = time.perf_counter()
-    with atomic_output(out, overwrite) as tmp, open_dataset(data, sequence=sequence) as seq:
+    with (
+        atomic_output(out, overwrite, [data], command="init-calib") as tmp,
+        open_dataset(data, sequence=sequence, camera=camera) as seq,
+    ):
         with console.status("Stage 1") as status:
             result = initial_calibration(seq, config, lambda step: status.update(f"Stage 1: {step}"))
         T_ref = seq.calibration.T_cam_lidar

@@ -19,13 +19,17 @@ import torch
 from rich.console import Console
 
 from calib.data import open_dataset
-from calib.errors import DataError
+from calib.errors import ConfigError, DataError
 from calib.geometry import calibration_error, perturb
-from calib.refine.passes import CalibrateConfig, refine_passes
-from calib.refine.tracking import OnlineState, departure, extrinsic_of
-from supportnet.cli.cmd_calibrate import parse_init, parse_supports
-from supportnet.cli.output_dir import atomic_output, progress_bar, resolved_config, write_json
+from calib.pipeline import OnlineCalibrator
+from calib.refine.passes import CalibrateConfig
+from calib.refine.tracking import departure
+from calib.results import SCHEMA_VERSION
+from supportnet.cli.cmd_calibrate import parse_init
+from supportnet.cli.console import make_console
+from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.runtime.matcher_factory import build_matcher
+from supportnet.runtime.support_sources import parse_supports
 
 __all__ = ["run_online", "true_extrinsics"]
 
@@ -62,22 +66,25 @@ def run_online(
     seed: int = 0,
     overwrite: bool = False,
     console: Console | None = None,
+    camera: int | str | None = None,
 ) -> dict:
-    """Calibrate ``data`` as a stream; returns what ``estimates.json`` holds."""
-    console = console or Console(stderr=True)
+    """Calibrate ``data`` as a stream (:class:`calib.pipeline.OnlineCalibrator`); returns what
+    ``estimates.json`` holds."""
+    console = console or make_console()
+    claim_output(out, overwrite, [data])
     online = config.online
-    matcher = build_matcher(config.matcher, config.edge, config.flow_model)
-    supports = parse_supports(support_text, config)
+    supports = parse_supports(support_text, config.support_map)
     if len(supports) != 1:
-        raise DataError("--support", "online calibration takes one support, not a comma-separated list")
+        raise ConfigError("--support", "online calibration takes one support, not a comma-separated list")
     support = supports[0]
     init_kind, init_arg = parse_init(init_text)
     if init_kind == "stage1":
-        raise DataError("--init", "online calibration starts from perturb:CM,DEG or file:PATH")
+        raise ConfigError("--init", "online calibration starts from perturb:CM,DEG or file:PATH")
+    matcher = build_matcher(config.matcher, config.edge, config.flow_model)
     truth = true_extrinsics(data, sequence)
     start = time.perf_counter()
     rows = []
-    with open_dataset(data, sequence=sequence) as seq:
+    with open_dataset(data, sequence=sequence, camera=camera) as seq:
         T_file = seq.calibration.T_cam_lidar
         if T_file is None and init_kind != "file":
             raise DataError(data, "has no calibration on file; start from --init file:PATH")
@@ -88,34 +95,24 @@ def run_online(
         T_file = T_file if T_file is not None else T_init
         if len(seq) < online.window:
             raise DataError(data, f"has {len(seq)} frames, fewer than one window ({online.window})")
-        state = OnlineState.start(T_init, T_file, online)
-        starts = list(range(0, len(seq) - online.window + 1, online.step))
-        rng = np.random.default_rng(seed)
+        calibrator = OnlineCalibrator(T_init, support, matcher, config, T_file=T_file, seed=seed)
+        windows = (len(seq) - online.window) // online.step + 1
         with progress_bar("online", console) as progress:
-            task = progress.add_task("windows", total=len(starts))
-            for k, first in enumerate(starts):
-                frames = [seq[i] for i in range(first, first + online.window)]
-                T_run = extrinsic_of(state.x, T_file)
-                result = refine_passes(frames, T_run, matcher, support, config, rng)
-                z = departure(result.T_cam_lidar, T_file)
-                state.update(z, result.covariance)
-                middle = first + online.window // 2
-                T_est = extrinsic_of(state.x, T_file)
+            task = progress.add_task("windows", total=windows)
+            for frame in seq:
+                estimate = calibrator.push(frame)
+                if estimate is None:
+                    continue
+                middle = estimate.first_frame + online.window // 2
                 row = {
-                    "window": k,
-                    "first_frame": first,
-                    "last_frame": first + online.window - 1,
-                    "time_s": float(seq.timestamps[middle]) if seq.timestamps is not None else float(middle),
-                    "window_estimate": _readable(z),
-                    "running_estimate": _readable(state.x),
-                    "std_cm_deg": list(state.std),
-                    "drift": state.drift,
-                    "T_cam_lidar": T_est.tolist(),
-                    "correspondences": result.correspondences,
+                    **estimate.to_dict(),
+                    "window_estimate": _readable(departure(estimate.window_T_cam_lidar, T_file)),
+                    "running_estimate": _readable(departure(estimate.T_cam_lidar, T_file)),
+                    "std_cm_deg": list(estimate.std),
                 }
                 if truth is not None:
                     row["truth"] = _readable(departure(truth[middle], T_file))
-                    row["error"] = calibration_error(T_est, truth[middle]).to_dict()
+                    row["error"] = calibration_error(estimate.T_cam_lidar, truth[middle]).to_dict()
                     row["error_of_file"] = calibration_error(T_file, truth[middle]).to_dict()
                 rows.append(row)
                 progress.advance(task)
@@ -126,6 +123,7 @@ def run_online(
         "std_cm_deg": rows[-1]["std_cm_deg"],
         "drift": bool(rows[-1]["drift"]),
         "first_drift_window": flagged[0] if flagged else None,
+        "schema_version": SCHEMA_VERSION,
         "support": support.name,
         "data": str(data),
         "sequence": sequence,
@@ -134,7 +132,7 @@ def run_online(
         "wall_s": time.perf_counter() - start,
         "config": config.model_dump(mode="json"),
     }
-    with atomic_output(out, overwrite) as tmp:
+    with atomic_output(out, overwrite, [data], command="calibrate --online") as tmp:
         write_json(tmp / "estimates.json", output)
         _write_csv(rows, tmp / "estimates.csv")
         _plot(

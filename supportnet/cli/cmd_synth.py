@@ -2,34 +2,52 @@
 
 from __future__ import annotations
 
-import json
+import os
 import re
 import shutil
-import tempfile
 import time
 from pathlib import Path
 
 from rich.console import Console
 
 from calib.data.rosbag import write_bag
-from calib.errors import DataError
-from calib.synth.generate import Synthesizer, write_sequence
+from calib.errors import ConfigError, DataError
+from calib.seeds import check_seed
+from calib.synth.generate import MAX_DRIFT, MAX_FRAMES, Synthesizer, write_sequence
 from calib.synth.synth_config import load_synth_config
-from supportnet.cli.output_dir import progress_bar, resolved_config
+from supportnet.cli.console import make_console
+from supportnet.cli.output_dir import (
+    claim_output,
+    make_parents,
+    make_temp_dir,
+    progress_bar,
+    remove_empty,
+    replace_atomically,
+    resolved_config,
+    sweep_leftovers,
+    write_json,
+    write_marker,
+)
 
 __all__ = ["parse_drift", "run_synth"]
 
+MAX_WORKERS = 256
+"""Rendering processes at most (each holds a copy of the world)."""
+
 
 def parse_drift(text: str | None) -> tuple[float, float]:
-    """``CM,DEG`` → ``(cm, deg)``; ``None`` → no drift."""
+    """``CM,DEG`` → ``(cm, deg)``, each from 0 to :data:`MAX_DRIFT` (NaN and infinity refused:
+    they would hang the ray caster); ``None`` → no drift."""
     if text is None:
         return (0.0, 0.0)
     try:
         cm, deg = (float(v) for v in text.split(","))
     except ValueError:
-        raise DataError("--drift", f"{text!r} is not CM,DEG (e.g. 5,1)") from None
-    if cm < 0 or deg < 0:
-        raise DataError("--drift", f"sizes must be non-negative, got {text!r}")
+        raise ConfigError("--drift", f"{text!r} is not CM,DEG (e.g. 5,1)") from None
+    if not (0 <= cm <= MAX_DRIFT[0] and 0 <= deg <= MAX_DRIFT[1]):  # False for NaN too
+        raise ConfigError(
+            "--drift", f"sizes must be 0 to {MAX_DRIFT[0]:g} cm and 0 to {MAX_DRIFT[1]:g}°, got {text!r}"
+        )
     return cm, deg
 
 
@@ -55,9 +73,12 @@ def run_synth(
     Returns:
         The sequence folder (or the bag folder).
     """
-    console = console or Console(stderr=True)
-    if frames < 1:
-        raise DataError("--frames", f"must be at least 1, got {frames}")
+    console = console or make_console()
+    if not 1 <= frames <= MAX_FRAMES:
+        raise ConfigError("--frames", f"must be from 1 to {MAX_FRAMES}, got {frames}")
+    check_seed(seed, "--seed")
+    if not 1 <= workers <= MAX_WORKERS:
+        raise ConfigError("--workers", f"must be from 1 to {MAX_WORKERS}, got {workers}")
     if not re.fullmatch(r"[A-Za-z0-9_-]+", sequence):
         raise DataError("--sequence", f"{sequence!r} is not a folder name (letters, digits, - and _)")
     if fmt not in ("kitti", "bag"):
@@ -66,13 +87,21 @@ def run_synth(
     seq_dir, pose_file = out / "sequences" / sequence, out / "poses" / f"{sequence}.txt"
     if fmt == "bag":
         seq_dir = out / f"{sequence}_bag"
-    if seq_dir.exists() and not overwrite:
-        raise DataError(seq_dir, "already exists; pass --overwrite to replace it")
+    claim_output(seq_dir, overwrite)
+    if fmt == "kitti" and os.path.lexists(pose_file) and not os.path.lexists(seq_dir):
+        raise DataError(
+            pose_file, f"already exists without {seq_dir}; remove it or choose another --sequence"
+        )
     cfg = load_synth_config(world, config)
     start = time.perf_counter()
     synth = Synthesizer(cfg, frames, seed, drift)
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".synth-{sequence}.", dir=out))
+    sweep_leftovers(out, f"synth-{sequence}")
+    created = make_parents(out)
+    try:
+        tmp = make_temp_dir(out, f"synth-{sequence}", "synth")
+    except BaseException:
+        remove_empty(created)
+        raise
     try:
         with progress_bar(f"{world} seq {sequence}", console) as progress:
             task = progress.add_task("render", total=frames)
@@ -82,19 +111,21 @@ def run_synth(
                     rendered.append(item.frame)
                     progress.advance(task)
                 written = write_bag(tmp / seq_dir.name, rendered, ros_version=2)
-                (written / "meta.json").write_text(json.dumps(synth.meta(), indent=2) + "\n")
+                write_json(written / "meta.json", synth.meta())
             else:
                 written = write_sequence(synth, tmp, sequence, workers, lambda n: progress.advance(task, n))
         (written / "config.yaml").write_text(resolved_config(cfg))
-        if seq_dir.exists():
-            shutil.rmtree(seq_dir)
-        seq_dir.parent.mkdir(parents=True, exist_ok=True)
-        written.rename(seq_dir)
+        write_marker(written, "synth", world=world, seed=seed, frames=frames)
+        claim_output(seq_dir, overwrite)  # again: another run may have written it meanwhile
+        moves = [(written, seq_dir)]
         if fmt == "kitti":
-            pose_file.parent.mkdir(parents=True, exist_ok=True)
-            (tmp / "poses" / f"{sequence}.txt").replace(pose_file)
-    finally:
+            moves.append((tmp / "poses" / f"{sequence}.txt", pose_file))
+        replace_atomically(moves)
+    except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        remove_empty(created)  # the dataset root, if this run made it and nothing else is there
+        raise
+    shutil.rmtree(tmp, ignore_errors=True)
     seconds = time.perf_counter() - start
     console.print(
         f"wrote {frames} {world} frames (seed {seed}) to {seq_dir} "

@@ -42,7 +42,7 @@ EDGE_GAIN = 8.0
 
 
 class FlowConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     feature_dim: int = Field(64, ge=8, description="channels of the matching features (1/8 resolution)")
     hidden_dim: int = Field(48, ge=8, description="GRU state channels")

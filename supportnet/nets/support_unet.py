@@ -21,7 +21,7 @@ __all__ = ["ModelConfig", "SupportUNet"]
 class ModelConfig(BaseModel):
     """Width and depth of :class:`SupportUNet`."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     width: int = Field(12, ge=4, description="channels of the first level; each level doubles them")
     depth: int = Field(3, ge=1, le=5, description="down-sampling levels below the stem")

@@ -11,7 +11,27 @@ from matplotlib import colormaps
 from calib.projection import ProjectedScan
 from calib.support.class_residuals import ClassStats, classwise_average
 
-__all__ = ["class_residual_chart", "colourise", "draw_projection", "learning_curves"]
+__all__ = [
+    "DEPTH_CMAP",
+    "MAX_DEPTH_M",
+    "class_residual_chart",
+    "colour_bar",
+    "colour_bar_height",
+    "colour_name",
+    "colourise",
+    "depth_bar",
+    "draw_projection",
+    "learning_curves",
+    "map_picture",
+    "named_colours",
+    "tag",
+    "with_colour_bar",
+]
+
+DEPTH_CMAP = "turbo"
+MAX_DEPTH_M = 40.0
+""":func:`draw_projection` colours depth 0 .. ``MAX_DEPTH_M`` with ``DEPTH_CMAP`` (farther points
+take the far end's colour)."""
 
 
 def colourise(values: np.ndarray, cmap: str = "viridis") -> np.ndarray:
@@ -20,15 +40,137 @@ def colourise(values: np.ndarray, cmap: str = "viridis") -> np.ndarray:
 
 
 def draw_projection(
-    image: np.ndarray, projected: ProjectedScan, max_depth: float = 40.0, radius: int | None = None
+    image: np.ndarray, projected: ProjectedScan, max_depth: float = MAX_DEPTH_M, radius: int | None = None
 ) -> np.ndarray:
-    """The visible points of a scan drawn on ``image (H, W, 3)`` uint8, turbo-coloured by depth
-    (near = blue, ``max_depth`` and beyond = red). Returns a new image."""
+    """The visible points of a scan drawn on ``image (H, W, 3)`` uint8, coloured by depth with
+    ``DEPTH_CMAP`` (turbo: 0 m dark purple, then blue, cyan, green, yellow, orange, and red from
+    about 0.9 · ``max_depth``; ``max_depth`` and beyond dark red). Returns a new image;
+    :func:`depth_bar` is its legend and :func:`colour_name` names the colour of one depth."""
     out = image.copy()
-    colours = colourise(projected.depth / max_depth, "turbo")
+    colours = colourise(projected.depth / max_depth, DEPTH_CMAP)
     radius = radius if radius is not None else max(1, round(image.shape[1] / 1000))
     for (u, v), colour in zip(np.round(projected.uv).astype(int), colours, strict=True):
         cv2.circle(out, (int(u), int(v)), radius, tuple(int(c) for c in colour), -1)
+    return out
+
+
+def colour_name(rgb: np.ndarray | tuple[int, int, int]) -> str:
+    """The everyday name of one uint8 RGB colour (``black``, ``white``, ``grey``, ``red``,
+    ``orange``, ``yellow``, ``green``, ``cyan``, ``blue``, ``purple``, ``magenta``), by hue,
+    saturation and value; captions name colours with it, so a test can find them in the picture."""
+    return _names(np.asarray(rgb, dtype=np.uint8).reshape(1, 3))[0]
+
+
+_HUES = (
+    (15, "red"),
+    (40, "orange"),
+    (70, "yellow"),
+    (160, "green"),
+    (195, "cyan"),
+    (260, "blue"),
+    (292, "purple"),
+    (335, "magenta"),
+    (361, "red"),
+)
+
+
+def _names(rgb: np.ndarray) -> np.ndarray:
+    """``rgb (N, 3)`` uint8 -> ``(N,)`` colour names (:func:`colour_name`)."""
+    hsv = cv2.cvtColor(rgb.reshape(-1, 1, 3), cv2.COLOR_RGB2HSV_FULL).reshape(-1, 3).astype(float)
+    hue, sat, val = hsv[:, 0] * 360 / 256, hsv[:, 1] / 255, hsv[:, 2] / 255
+    names = np.empty(len(rgb), dtype=object)
+    bounds = np.array([b for b, _ in _HUES])
+    names[:] = np.array([n for _, n in _HUES], dtype=object)[np.searchsorted(bounds, hue, side="right")]
+    grey = sat < 0.2
+    names[grey] = "grey"
+    names[grey & (val > 0.85)] = "white"
+    names[val < 0.15] = "black"
+    return names
+
+
+def named_colours(picture: np.ndarray, min_pixels: int = 20) -> set[str]:
+    """The :func:`colour_name` of every colour covering at least ``min_pixels`` pixels of
+    ``picture (H, W, 3)`` uint8."""
+    rgb = picture.reshape(-1, 3).astype(np.uint32)
+    packed, counts = np.unique(rgb[:, 0] << 16 | rgb[:, 1] << 8 | rgb[:, 2], return_counts=True)
+    colours = np.column_stack([packed >> 16, packed >> 8 & 255, packed & 255]).astype(np.uint8)
+    names = _names(colours)
+    return {n for n in set(names) if counts[names == n].sum() >= min_pixels}
+
+
+def colour_bar_height(width: int) -> int:
+    """Height in pixels of the :func:`colour_bar` strip under a picture ``width`` pixels wide."""
+    return max(44, round(width * 0.05))
+
+
+def _text_width(text: str, scale: float) -> int:
+    return cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, max(1, round(scale * 2)))[0][0]
+
+
+def _text(image: np.ndarray, text: str, x: int, y: int, scale: float, anchor: str = "left") -> None:
+    thickness = max(1, round(scale * 2))
+    w = _text_width(text, scale)
+    x = {"left": x, "centre": x - w // 2, "right": x - w}[anchor]
+    cv2.putText(
+        image, text, (int(x), int(y)), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thickness, cv2.LINE_AA
+    )
+
+
+def colour_bar(width: int, cmap: str, low: str, high: str, title: str) -> np.ndarray:
+    """A legend strip ``(colour_bar_height(width), width, 3)`` uint8: the colour map as a ramp
+    from its low end (left) to its high end (right), ``low`` and ``high`` written under its ends and
+    ``title`` under its middle (ASCII text, made smaller where the strip is narrow)."""
+    height = colour_bar_height(width)
+    bar = np.full((height, width, 3), 255, np.uint8)
+    pad = max(3, height // 10)
+    x0, x1 = round(width * 0.12), round(width * 0.88)
+    ramp_h = height // 2 - pad
+    bar[pad : pad + ramp_h, x0:x1] = colourise(np.linspace(0.0, 1.0, x1 - x0), cmap)[None]
+    cv2.rectangle(bar, (x0 - 1, pad - 1), (x1, pad + ramp_h), (0, 0, 0), 1)
+    scale = max(0.3, height / 95)
+    fits = lambda s: _text_width(low, s) + _text_width(title, s) + _text_width(high, s) + 4 * pad <= x1 - x0  # noqa: E731
+    while scale > 0.3 and not fits(scale):
+        scale *= 0.9
+    baseline = height - pad - 1
+    _text(bar, low, x0, baseline, scale)
+    _text(bar, high, x1, baseline, scale, "right")
+    if fits(scale):
+        _text(bar, title, (x0 + x1) // 2, baseline, scale, "centre")
+    return bar
+
+
+def with_colour_bar(picture: np.ndarray, cmap: str, low: str, high: str, title: str) -> np.ndarray:
+    """``picture (H, W, 3)`` with its :func:`colour_bar` underneath: ``(H + bar, W, 3)``."""
+    return np.concatenate([picture, colour_bar(picture.shape[1], cmap, low, high, title)], axis=0)
+
+
+def map_picture(
+    values: np.ndarray, title: str, cmap: str = "viridis", low: float = 0.0, high: float = 1.0
+) -> np.ndarray:
+    """A map ``values (H, W)`` coloured with ``cmap`` from ``low`` to ``high`` (clipped), with its
+    colour bar underneath: ``(H + bar, W, 3)`` uint8."""
+    shown = colourise((np.asarray(values, dtype=np.float64) - low) / (high - low), cmap)
+    return with_colour_bar(shown, cmap, f"{low:g}", f"{high:g}", title)
+
+
+def depth_bar(width: int, max_depth: float = MAX_DEPTH_M) -> np.ndarray:
+    """The legend of :func:`draw_projection`'s colours, ``width`` pixels wide."""
+    return colour_bar(
+        width, DEPTH_CMAP, "0 m (near)", f"{max_depth:g} m and beyond (far)", "depth of each LiDAR point"
+    )
+
+
+def tag(image: np.ndarray, text: str) -> np.ndarray:
+    """``image`` with ``text`` (ASCII) in white on a black box in its top-left corner; a new image."""
+    out = image.copy()
+    scale = max(0.45, image.shape[1] / 1800)
+    thickness = max(1, round(scale * 2))
+    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
+    pad = max(3, h // 3)
+    cv2.rectangle(out, (0, 0), (w + 2 * pad, h + base + 2 * pad), (0, 0, 0), -1)
+    cv2.putText(
+        out, text, (pad, pad + h), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thickness, cv2.LINE_AA
+    )
     return out
 
 

@@ -30,6 +30,11 @@ def tiny(tiny_worlds):
     return root, [{**s, "maps": str(m)} for s, m in zip(sources, maps, strict=True)]
 
 
+def summary_of(sources: list[dict]) -> list[dict]:
+    """The ``summary.json`` of each source's maps."""
+    return [json.loads((Path(s["maps"]) / "summary.json").read_text()) for s in sources]
+
+
 def _config_file(tmp_path, sources, **trainer):
     path = tmp_path / "train.yaml"
     path.write_text(
@@ -57,6 +62,10 @@ def test_fast_dev_run_trains_exports_predicts_and_calibrates(tiny, tmp_path):
     summary = run_train(config)
     ckpt = tmp_path / "run" / "checkpoints" / "last.ckpt"
     assert ckpt.is_file() and summary["train_frames"] == 3 and summary["val_frames"] == 3
+    saved = torch.load(ckpt, weights_only=False)["SupportDataModule"]["sources"]  # the data it learned from
+    assert [s["dataset_fingerprint"] for s in saved] == [
+        s["dataset_fingerprint"] for s in summary_of(sources)
+    ]
     assert (tmp_path / "run" / "config.yaml").is_file() and not (tmp_path / "run.partial").exists()
     report = export_onnx(ckpt, tmp_path / "model.onnx")
     assert report["max_abs_diff"] <= 1e-4

@@ -7,6 +7,7 @@ import pytest
 from calib.data import open_dataset
 from calib.data.io import read_label, read_scan
 from calib.data.real_fixtures import AMZ_DRIVE, real_scenes
+from calib.errors import DataError
 from calib.features import contour_check
 
 pytestmark = pytest.mark.realdata
@@ -49,3 +50,15 @@ def test_semantickitti_fixture_labels(realdata):
     labels = read_label(base / "labels/000000.label", len(points))
     assert labels.shape == (50,) and labels.dtype == np.uint16
     assert set(np.unique(labels)) <= set(range(260))
+
+
+def test_amz_raw_drive_camera_choice(realdata):
+    """The AMZ drive has only image_00: --camera 0 reads it without a note, --camera 2 is refused
+    with the list of cameras present (issue 19, defect 10)."""
+    seq = open_dataset(realdata / AMZ_DRIVE, camera="0")
+    assert seq.camera == "00" and not any("image_00" in n for n in seq.notes)
+    with pytest.raises(DataError, match=r"no camera 2 \(image_02 not found\); available cameras: 0"):
+        open_dataset(realdata / AMZ_DRIVE, camera=2)
+    # the two AMZ folders share a calibration and layout, not their frames
+    more = open_dataset(realdata / AMZ_DRIVE.replace("amz_kitti_raw_0928", "amz_kitti_raw_0928_more"))
+    assert more.fingerprint() != seq.fingerprint()

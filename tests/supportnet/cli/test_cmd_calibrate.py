@@ -9,8 +9,9 @@ from calib.refine.passes import CalibrateConfig, load_calibrate_config
 from calib.support.support_maps import load_maps_config
 from calib.synth.generate import Synthesizer, write_sequence
 from calib.synth.synth_config import load_synth_config
-from supportnet.cli.cmd_calibrate import parse_init, parse_supports, run_calibrate
+from supportnet.cli.cmd_calibrate import parse_init, run_calibrate
 from supportnet.cli.cmd_maps import run_maps
+from supportnet.runtime.support_sources import parse_supports
 
 STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}}
 FAST = CalibrateConfig(frames=3, passes=2, sampling={"per_frame": 1500})
@@ -43,6 +44,9 @@ def test_calibrate_undoes_a_perturbation_with_uniform_and_offline_support(still_
     stored = json.loads((tmp_path / "cal" / "result.json").read_text())
     for key in ("T_cam_lidar", "initial_T_cam_lidar", "reference_T_cam_lidar", "error", "initial_error"):
         assert key in stored
+    assert stored["schema_version"] == 2 and stored["frames"] == 3 and len(stored["frame_indices"]) == 3
+    assert stored["time_offset_s"] is None and isinstance(stored["weak_directions"], list)
+    assert np.asarray(stored["covariance"]).shape == (6, 6)
     assert stored["support"] == "uniform" and stored["summary"]["translation_cm"]["mean"] < 2.5
     assert "| uniform |" in (tmp_path / "cal" / "summary.md").read_text()
     assert len(list((tmp_path / "cal").glob("overlay_*.png"))) == 2
@@ -61,17 +65,20 @@ def test_init_from_a_file(still_vineyard, tmp_path):
 
 def test_parse_errors_are_one_line(tmp_path):
     config = load_calibrate_config()
-    with pytest.raises(DataError, match="perturb takes CM,DEG"):
-        parse_init("perturb:10")
-    with pytest.raises(DataError, match="12 or 16 numbers"):
+    for text in ("perturb:10", "perturb:1.2.3,2", "perturb:nan,1", "perturb:-1,2", "perturb:inf,2"):
+        with pytest.raises(DataError, match="perturb takes CM,DEG"):
+            parse_init(text)
+    with pytest.raises(DataError, match="out of range"):
+        parse_init("perturb:10,200")
+    with pytest.raises(DataError, match=r"expected 12 \(3x4 \[R \| t\]\) or 16"):
         (tmp_path / "bad.txt").write_text("1 2 3")
         parse_init(f"file:{tmp_path / 'bad.txt'}")
     assert parse_init("stage1") == ("stage1", None)
     with pytest.raises(DataError, match="is not perturb:CM,DEG, file:PATH or stage1"):
         parse_init("stage1:x")
     with pytest.raises(DataError, match="supportnet maps"):
-        parse_supports(f"offline:{tmp_path}", config)
+        parse_supports(f"offline:{tmp_path}", config.support_map)
     with pytest.raises(DataError, match="distinct"):
-        parse_supports("uniform,uniform", config)
+        parse_supports("uniform,uniform", config.support_map)
     with pytest.raises(DataError, match="not uniform"):
-        parse_supports("uniformm", config)
+        parse_supports("uniformm", config.support_map)

@@ -1,0 +1,213 @@
+"""The method, in its four stages (DESIGN.md):
+
+1. an initial extrinsic ``T⁰`` (given, or from motion: :mod:`calib.init`);
+2. cross-modal residuals: a matcher gives each projected LiDAR point its image-plane residual
+   (:mod:`calib.match`);
+3. a support map of where those residuals are reliable (:mod:`calib.support`; offline maps, or a
+   learned predictor that ``supportnet`` plugs in through :class:`~calib.support.source.SupportSource`);
+4. support-guided sampling and the weighted SE(3) refinement, in passes (:mod:`calib.refine`).
+
+:class:`Calibrator` runs them on a sequence; :class:`OnlineCalibrator` runs Stages 2–4 window by
+window on a stream and fuses the windows into a running estimate with a drift alarm.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence as FrameList
+
+import numpy as np
+
+from calib.data.extrinsic_file import rigid_problem
+from calib.data.types import Frame, Sequence
+from calib.errors import ConfigError, DataError
+from calib.init.motion_init import Stage1Config, initial_calibration, load_stage1_config
+from calib.match.correspondences import Matcher
+from calib.match.edge_matcher import EdgeMatcher
+from calib.observability import weak_directions
+from calib.refine.passes import CalibrateConfig, load_calibrate_config, refine_passes
+from calib.refine.tracking import OnlineState, departure, extrinsic_of
+from calib.results import CalibrationResult, OnlineEstimate
+from calib.support.source import SupportSource, UniformSupport
+
+__all__ = ["Calibrator", "OnlineCalibrator", "default_matcher", "select_frames"]
+
+
+def select_frames(n: int, count: int) -> np.ndarray:
+    """``min(count, n)`` frame positions spread evenly over ``range(n)`` (first and last included)."""
+    if n < 1:
+        raise DataError("sequence", "has no frames")
+    return np.unique(np.linspace(0, n - 1, min(count, n)).round().astype(int))
+
+
+def default_matcher(config: CalibrateConfig) -> Matcher:
+    """The config's Stage 2 matcher when ``calib`` can build it alone (the EdgeMatcher); the
+    learned flow matcher comes from ``supportnet`` (``supportnet.Calibrator`` builds it)."""
+    if config.matcher != "edge":
+        raise ConfigError(
+            "matcher", f"{config.matcher!r} is a learned matcher: pass matcher= or use supportnet"
+        )
+    return EdgeMatcher(config.edge)
+
+
+class Calibrator:
+    """Calibrate a sequence: Stage 1 (or a given ``T_init``), then Stages 2–4 in passes.
+
+    Args:
+        support: Stage 3, the support source (default: uniform sampling).
+        matcher: Stage 2 (default: the config's EdgeMatcher).
+        config: Stages 2–4 (default: the packaged ``calibrate.yaml``).
+        stage1: Stage 1 from motion, used when ``calibrate`` gets no ``T_init`` (default: the
+            packaged ``init_calib.yaml``).
+    """
+
+    def __init__(
+        self,
+        support: SupportSource | None = None,
+        matcher: Matcher | None = None,
+        config: CalibrateConfig | None = None,
+        stage1: Stage1Config | None = None,
+    ) -> None:
+        self.config = config if config is not None else load_calibrate_config()
+        self.support = support if support is not None else UniformSupport()
+        self.matcher = matcher if matcher is not None else default_matcher(self.config)
+        self._stage1 = stage1
+
+    def initial_extrinsic(self, seq: Sequence) -> np.ndarray:
+        """Stage 1: ``T⁰ (4, 4)`` from the sequence's motion (raises when motion cannot tell)."""
+        stage1 = self._stage1 if self._stage1 is not None else load_stage1_config()
+        return initial_calibration(seq, stage1).T_cam_lidar
+
+    def calibrate(
+        self,
+        seq: Sequence | FrameList[Frame],
+        T_init: np.ndarray | None = None,
+        seed: int | tuple[int, ...] = 0,
+    ) -> CalibrationResult:
+        """Calibrate ``seq`` (a :class:`Sequence` or a list of frames sharing one ``K``).
+
+        Args:
+            seq: the data; ``config.frames`` frames spread over it are used.
+            T_init: ``(4, 4)`` initial ``T_cam_lidar``; ``None``: Stage 1 from motion.
+            seed: of the correspondence sampling (an int or a tuple, as numpy seeds take).
+        """
+        start = time.perf_counter()
+        if T_init is None:
+            if not isinstance(seq, Sequence):
+                raise DataError("T_init", "Stage 1 needs a Sequence (with time stamps); give T_init")
+            T_init = self.initial_extrinsic(seq)  # Stage 1
+        T_init = _checked_extrinsic(T_init, "T_init")
+        picks = select_frames(len(seq), self.config.frames)
+        frames = [seq[int(i)] for i in picks]
+        passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
+            frames, T_init, self.matcher, self.support, self.config, np.random.default_rng(seed)
+        )
+        covariance_t, covariance_r = passes.covariance[:3, :3], passes.covariance[3:, 3:]
+        weak = weak_directions(
+            covariance_t,
+            covariance_r,
+            passes.T_cam_lidar[:3, :3],
+            self.config.weak_std_cm,
+            self.config.weak_std_deg,
+        )
+        return CalibrationResult(
+            T_cam_lidar=passes.T_cam_lidar,
+            initial_T_cam_lidar=T_init,
+            reference_T_cam_lidar=frames[0].calibration.T_cam_lidar,
+            covariance=passes.covariance,
+            support=self.support.name,
+            frame_indices=[int(i) for i in picks],
+            correspondences=passes.correspondences,
+            runtime_s=time.perf_counter() - start,
+            passes=passes.passes,
+            weak_directions=weak,
+        )
+
+
+class OnlineCalibrator:
+    """Stages 2–4 on a stream, window by window (``config.online.window`` frames, a new window
+    every ``config.online.step``), fused by a Kalman filter with a random-walk mount
+    (:mod:`calib.refine.tracking`) into a running estimate with its covariance and a drift alarm.
+
+    Args:
+        T_init: ``(4, 4)`` where the running estimate starts.
+        support, matcher, config: as :class:`Calibrator`.
+        T_file: the calibration on file that drift is measured against (default: the first
+            frame's own calibration, else ``T_init``).
+        seed: of the correspondence sampling.
+    """
+
+    def __init__(
+        self,
+        T_init: np.ndarray,
+        support: SupportSource | None = None,
+        matcher: Matcher | None = None,
+        config: CalibrateConfig | None = None,
+        T_file: np.ndarray | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.config = config if config is not None else load_calibrate_config()
+        self.support = support if support is not None else UniformSupport()
+        self.matcher = matcher if matcher is not None else default_matcher(self.config)
+        self.T_init = _checked_extrinsic(T_init, "T_init")
+        self.T_file = None if T_file is None else _checked_extrinsic(T_file, "T_file")
+        self._rng = np.random.default_rng(seed)
+        self._state: OnlineState | None = None
+        self._buffer: list[Frame] = []
+        self._pushed = 0
+        self._next_start = 0
+        self._windows = 0
+
+    @property
+    def T_cam_lidar(self) -> np.ndarray:
+        """``(4, 4)`` the running estimate (``T_init`` before the first window closes)."""
+        if self._state is None:
+            return self.T_init
+        return extrinsic_of(self._state.x, self.T_file)
+
+    def push(self, frame: Frame) -> OnlineEstimate | None:
+        """Add the next frame of the stream; an :class:`OnlineEstimate` when it closes a window,
+        else ``None``."""
+        online = self.config.online
+        position = self._pushed
+        self._pushed += 1
+        if self.T_file is None:
+            T = frame.calibration.T_cam_lidar
+            self.T_file = self.T_init if T is None else np.asarray(T, np.float64)
+        if self._state is None:
+            self._state = OnlineState.start(self.T_init, self.T_file, online)
+        if position >= self._next_start:
+            self._buffer.append(frame)
+        if len(self._buffer) < online.window:
+            return None
+        first = self._next_start
+        passes = refine_passes(
+            self._buffer, self.T_cam_lidar, self.matcher, self.support, self.config, self._rng
+        )
+        self._state.update(departure(passes.T_cam_lidar, self.T_file), passes.covariance)
+        middle = self._buffer[online.window // 2]
+        estimate = OnlineEstimate(
+            window=self._windows,
+            first_frame=first,
+            last_frame=first + online.window - 1,
+            time_s=float(middle.timestamp if middle.timestamp is not None else first + online.window // 2),
+            T_cam_lidar=self.T_cam_lidar,
+            window_T_cam_lidar=passes.T_cam_lidar,
+            covariance=self._state.P.copy(),
+            drift=self._state.drift,
+            correspondences=passes.correspondences,
+            reference_T_cam_lidar=self.T_file,
+        )
+        self._windows += 1
+        self._next_start += online.step
+        self._buffer = self._buffer[online.step :]
+        return estimate
+
+
+def _checked_extrinsic(T: np.ndarray, name: str) -> np.ndarray:
+    """``T`` as a float64 ``(4, 4)`` rigid transform, or a one-line error naming ``name``."""
+    T = np.asarray(T, np.float64)
+    problem = rigid_problem(T)
+    if problem is not None:
+        raise DataError(name, problem)
+    return T

@@ -1,0 +1,89 @@
+"""Stage 3 sources by name (``--support``, ``supportnet.Calibrator(support=...)``): ``uniform``,
+``offline:MAPS`` (a ``supportnet maps`` folder) and ``onnx[:MODEL]`` (the learned predictor;
+bare ``onnx`` = the shipped model). Each implements :class:`calib.support.source.SupportSource`."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from calib.data.types import Frame
+from calib.errors import ConfigError, DataError
+from calib.support.source import MapSupport, SupportSource, UniformSupport
+from supportnet.runtime.support_predictor import SHIPPED_MODEL, SupportPredictor
+
+__all__ = ["PredictedSupport", "parse_supports", "resolve_support"]
+
+
+class PredictedSupport:
+    """The support map the exported U-Net predicts from each frame's image alone (Stage 3
+    online), remembered for the last frames seen so passes over the same frames predict once.
+
+    Args:
+        name: how results name it. predictor: the onnxruntime model.
+    """
+
+    def __init__(self, name: str, predictor: SupportPredictor, remember: int = 64) -> None:
+        self.name = name
+        self.predictor = predictor
+        self._remember = remember
+        self._maps: OrderedDict[tuple[int, str, int], np.ndarray] = OrderedDict()
+
+    def __call__(self, frame: Frame) -> np.ndarray:
+        key = (frame.index, frame.name, id(frame.image))
+        if key not in self._maps:
+            self._maps[key] = self.predictor.predict(frame.image)[0]
+            while len(self._maps) > self._remember:
+                self._maps.popitem(last=False)
+        return self._maps[key]
+
+
+def resolve_support(spec: str | SupportSource, support_map: str = "support") -> SupportSource:
+    """A support source from its name, or ``spec`` itself when it already is one.
+
+    Args:
+        spec: ``uniform``, ``offline:MAPS`` or ``onnx[:MODEL]``.
+        support_map: which offline map SGIS reads (``support`` or ``agreement``).
+
+    Raises:
+        ConfigError: an unknown name. DataError: a missing or unreadable maps folder or model.
+    """
+    if not isinstance(spec, str):
+        if not isinstance(spec, SupportSource):
+            raise ConfigError("support", f"{spec!r} is neither a name nor a SupportSource")
+        return spec
+    kind, _, arg = spec.strip().partition(":")
+    if kind == "uniform" and not arg:
+        return UniformSupport()
+    if kind == "offline" and arg:
+        return MapSupport(spec, _offline_map(Path(arg), support_map))
+    if kind == "onnx":
+        return PredictedSupport(spec, SupportPredictor(Path(arg) if arg else SHIPPED_MODEL))
+    raise ConfigError("--support", f"{spec!r} is not uniform, offline:MAPS or onnx[:MODEL]")
+
+
+def parse_supports(text: str, support_map: str = "support") -> list[SupportSource]:
+    """Comma-separated ``--support`` values (paired runs), each resolved; distinct names."""
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    if not names or len(set(names)) != len(names):
+        raise ConfigError("--support", f"needs one or more distinct values, got {text!r}")
+    return [resolve_support(name, support_map) for name in names]
+
+
+def _offline_map(maps: Path, key: str) -> np.ndarray:
+    """The whole-sequence map ``key`` of a ``supportnet maps`` folder."""
+    path = maps / "sequence.npz"
+    if not path.is_file():
+        raise DataError(path, "not found; make offline maps with `supportnet maps`")
+    try:
+        with np.load(path) as data:
+            values = np.asarray(data[key], np.float32)
+    except KeyError:
+        raise DataError(path, f"holds no {key!r} map; remake it with `supportnet maps`") from None
+    except (OSError, ValueError) as exc:
+        raise DataError(path, f"is not a readable maps file ({exc})") from None
+    if values.ndim != 2 or not np.isfinite(values).all():
+        raise DataError(path, f"{key!r} is not a finite (H, W) map")
+    return values

@@ -1,0 +1,86 @@
+"""The library's four stages end to end: Calibrator and OnlineCalibrator on a synthetic world
+whose true extrinsic is known."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from calib.errors import ConfigError, DataError
+from calib.geometry import calibration_error, perturb
+from calib.pipeline import Calibrator, OnlineCalibrator, select_frames
+from calib.refine.passes import CalibrateConfig
+from calib.results import SCHEMA_VERSION, CalibrationResult, OnlineEstimate
+from calib.support.source import MapSupport, SupportSource, UniformSupport
+from calib.synth.generate import Synthesizer
+from calib.synth.synth_config import load_synth_config
+
+STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}}
+FAST = CalibrateConfig(frames=3, passes=2, sampling={"per_frame": 1500}, online={"window": 3, "step": 2})
+
+
+@pytest.fixture(scope="module")
+def frames():
+    synth = Synthesizer(load_synth_config("vineyard", **STILL), 7, seed=5)
+    return [synth.render(i).frame for i in range(7)]
+
+
+def test_select_frames_spreads_evenly():
+    assert select_frames(10, 3).tolist() == [0, 4, 9] or select_frames(10, 3).tolist() == [0, 5, 9]
+    assert select_frames(2, 10).tolist() == [0, 1]
+    with pytest.raises(DataError, match="no frames"):
+        select_frames(0, 3)
+
+
+def test_calibrator_undoes_a_known_perturbation(frames):
+    T_ref = frames[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 10.0, 2.0, torch.Generator().manual_seed(0))
+    result = Calibrator(config=FAST).calibrate(frames, T_init)
+    assert isinstance(result, CalibrationResult)
+    assert result.initial_error.translation_cm == pytest.approx(10.0)
+    assert result.error.translation_cm < 2.5 and result.error.rotation_deg < 0.4
+    assert result.covariance.shape == (6, 6) and result.support == "uniform"
+    assert len(result.frame_indices) == 3 and result.correspondences > 100
+    stored = json.loads(json.dumps(result.to_dict(), allow_nan=False))  # strict JSON
+    assert stored["schema_version"] == SCHEMA_VERSION
+    assert stored["error"]["translation_cm"] == pytest.approx(result.error.translation_cm)
+
+
+def test_a_map_support_source_is_used_and_checked(frames):
+    assert isinstance(UniformSupport(), SupportSource)
+    wrong = MapSupport("offline:x", np.ones((3, 3), np.float32))
+    T = frames[0].calibration.T_cam_lidar
+    with pytest.raises(DataError, match="map is"):
+        Calibrator(support=wrong, config=FAST).calibrate(frames, T)
+
+
+def test_without_reference_the_error_is_none(frames):
+    result = Calibrator(config=FAST).calibrate(frames, frames[0].calibration.T_cam_lidar)
+    bare = CalibrationResult(**{**result.__dict__, "reference_T_cam_lidar": None})
+    assert bare.error is None and bare.to_dict()["error"] is None
+
+
+def test_bad_extrinsics_and_learned_matchers_are_refused(frames):
+    with pytest.raises(DataError, match="T_init"):
+        Calibrator(config=FAST).calibrate(frames, np.eye(3))
+    with pytest.raises(DataError, match="not orthonormal"):
+        Calibrator(config=FAST).calibrate(frames, np.diag([2.0, 1, 1, 1]))
+    with pytest.raises(ConfigError, match="learned matcher"):
+        Calibrator(config=CalibrateConfig(matcher="flow"))
+
+
+def test_online_calibrator_closes_windows_and_tracks(frames):
+    T_ref = frames[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(1))
+    online = OnlineCalibrator(T_init, config=FAST)
+    estimates = [online.push(f) for f in frames]
+    closed = [e for e in estimates if e is not None]
+    # windows of 3 frames every 2: [0-2], [2-4], [4-6]
+    assert [(e.first_frame, e.last_frame) for e in closed] == [(0, 2), (2, 4), (4, 6)]
+    assert estimates[2] is closed[0] and estimates[0] is None
+    assert all(isinstance(e, OnlineEstimate) for e in closed)
+    last = closed[-1]
+    assert calibration_error(last.T_cam_lidar, T_ref).rotation_deg < 0.5
+    assert np.allclose(online.T_cam_lidar, last.T_cam_lidar)
+    json.dumps(last.to_dict(), allow_nan=False)

@@ -1,0 +1,105 @@
+"""The README's tour runs as written: its shell commands (between ``<!-- tour:start -->`` and
+``<!-- tour:end -->``) in order, in an empty temporary folder, each with exit code 0.
+
+Kept small through the environment: ``--frames N`` becomes ``--frames min(N, F)`` with
+``F = SUPPORTNET_TOUR_FRAMES`` (default 60: the urban drive must reach its first corner for
+Stage 1), ``--runs N`` becomes ``--runs min(N, R)`` with ``R = SUPPORTNET_TOUR_RUNS`` (default 2).
+``.venv/bin/`` becomes the folder of this interpreter (the test's venv). ``make`` lines are not run
+(they build the checkout's own venv); the tour has none today. Slow: several minutes.
+
+    .venv/bin/python -m pytest -m slow tests/test_readme_tour.py -s   # -s prints each step's time
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+START, END = "<!-- tour:start -->", "<!-- tour:end -->"
+FRAMES = int(os.environ.get("SUPPORTNET_TOUR_FRAMES", "60"))
+RUNS = int(os.environ.get("SUPPORTNET_TOUR_RUNS", "2"))
+
+
+def tour_commands(readme: str) -> list[str]:
+    """The tour's commands as written, one string each (continued lines and multi-line quotes
+    kept together; comment lines and blank lines dropped)."""
+    assert readme.count(START) == 1 and readme.count(END) == 1, "README.md lacks the tour markers"
+    block = readme.split(START, 1)[1].split(END, 1)[0]
+    lines = [line for line in block.splitlines() if not line.startswith("```")]
+    commands, pending = [], ""
+    for line in lines:
+        if not pending and (not line.strip() or line.lstrip().startswith("#")):
+            continue
+        pending += line + "\n"
+        if line.endswith("\\"):
+            continue
+        try:
+            shlex.split(pending, comments=True)
+        except ValueError:  # a quote still open: the command goes on
+            continue
+        commands.append(pending.rstrip("\n"))
+        pending = ""
+    assert not pending, f"unterminated command in the tour: {pending!r}"
+    return commands
+
+
+def scaled(command: str, bin_dir: Path, frames: int = FRAMES, runs: int = RUNS) -> str:
+    """``command`` as the test runs it: this venv's ``bin``, fewer frames and runs."""
+    command = command.replace(".venv/bin/", f"{bin_dir}/")
+    command = re.sub(r"--frames (\d+)", lambda m: f"--frames {min(int(m[1]), frames)}", command)
+    return re.sub(r"--runs (\d+)", lambda m: f"--runs {min(int(m[1]), runs)}", command)
+
+
+def test_tour_parsing_keeps_continued_and_quoted_lines_together():
+    readme = f"""{START}
+```sh
+# a comment
+.venv/bin/supportnet synth --frames 200 --out d   # trailing comment
+.venv/bin/supportnet calibrate --out c \\
+    --runs 10
+.venv/bin/supportnet train "a=[
+    b]"
+```
+{END}"""
+    commands = tour_commands(readme)
+    assert len(commands) == 3
+    assert commands[1].endswith("--runs 10") and commands[2].endswith('b]"')
+    assert scaled(commands[0], Path("/v/bin"), 7).startswith("/v/bin/supportnet synth --frames 7 ")
+    assert scaled(commands[1], Path("/v/bin"), runs=3).endswith("--runs 3")
+
+
+@pytest.mark.slow
+def test_readme_tour_runs_in_order_in_an_empty_folder(tmp_path: Path) -> None:
+    bin_dir = Path(sys.executable).parent
+    if not (bin_dir / "supportnet").exists():
+        pytest.skip(f"no supportnet script beside {sys.executable}: install the project in this venv")
+    commands = tour_commands((ROOT / "README.md").read_text())
+    assert len(commands) >= 10, "the tour lost its commands"
+    env = {k: v for k, v in os.environ.items() if k != "COLUMNS"}
+    timings = []
+    for command in commands:
+        if command.startswith("make "):
+            timings.append((0.0, f"(not run) {command}"))
+            continue
+        run = scaled(command, bin_dir)
+        start = time.perf_counter()
+        result = subprocess.run(
+            ["bash", "-c", run], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1200
+        )
+        timings.append((time.perf_counter() - start, command.splitlines()[0]))
+        assert result.returncode == 0, (
+            f"tour step failed (exit {result.returncode}): {run}\n"
+            f"--- stdout\n{result.stdout[-3000:]}\n--- stderr\n{result.stderr[-3000:]}"
+        )
+    total = sum(t for t, _ in timings)
+    print(f"\nREADME tour: {len(commands)} commands in {total:.0f} s (frames <= {FRAMES}, runs <= {RUNS})")
+    for seconds, first_line in timings:
+        print(f"  {seconds:6.1f} s  {first_line}")
