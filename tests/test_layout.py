@@ -39,7 +39,8 @@ def imports_of(path: Path, name: str) -> set[str]:
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
-                base = ".".join(package.split(".")[: len(package.split(".")) - node.level + 1] + [base]).strip(".")
+                parts = package.split(".")
+                base = ".".join(parts[: len(parts) - node.level + 1] + [base]).strip(".")
             out.add(base)
             out |= {f"{base}.{alias.name}" for alias in node.names}
     return {m for m in out if m.split(".")[0] in PACKAGES}
@@ -60,6 +61,17 @@ def test_imports_point_one_way():
         if target.split(".")[0] not in ALLOWED[source.split(".")[0]]
     ]
     assert not wrong, "imports against calib ← supportnet ← train, export:\n" + "\n".join(wrong)
+
+
+def test_tests_mirror_the_arrows():
+    """``tests/calib`` tests the method alone (no ``supportnet`` import), and so on up."""
+    wrong = []
+    for package in PACKAGES:
+        for path in sorted((ROOT / "tests" / package).rglob("*.py")):
+            for target in imports_of(path, "tests.x"):
+                if target.split(".")[0] not in ALLOWED[package]:
+                    wrong.append(f"{path.relative_to(ROOT)} imports {target}")
+    assert not wrong, "\n".join(wrong)
 
 
 def test_no_import_cycles():

@@ -30,18 +30,36 @@ class World(str, Enum):
 def synth(
     world: Annotated[World, typer.Option(help="Which synthetic world.")],
     out: Annotated[Path, typer.Option(help="Dataset root (KITTI odometry layout).")],
-    frames: Annotated[int, typer.Option(help="Number of frames (10 Hz by default).")] = 100,
+    # the bounds are run_synth's, checked here too so a wrong value is told before torch loads
+    frames: Annotated[
+        int,
+        typer.Option(
+            help="Number of frames, 1 to 100000 (10 Hz by default).",
+            callback=in_range("--frames", 1, 100_000),
+        ),
+    ] = 100,
     seed: Annotated[
-        int, typer.Option(help="Seed, 0 to 2^32 - 1: world, extrinsic and noise all follow from it.")
+        int,
+        typer.Option(
+            help="Seed, 0 to 2^32 - 1: world, extrinsic and noise all follow from it.", callback=seed_of()
+        ),
     ] = 0,
     sequence: Annotated[str, typer.Option(help="Sequence folder name under sequences/.")] = "00",
     config: Annotated[
         Path | None, typer.Option(help="World config (default: the packaged <world>.yaml).")
     ] = None,
-    workers: Annotated[int, typer.Option(help="Processes rendering frames in parallel.")] = 2,
+    workers: Annotated[
+        int,
+        typer.Option(
+            help="Processes rendering frames in parallel, 1 to 256.", callback=in_range("--workers", 1, 256)
+        ),
+    ] = 2,
     drift: Annotated[
         str | None,
-        typer.Option(help="CM,DEG: the extrinsic drifts this far by the last frame (a loosening mount)."),
+        typer.Option(
+            help="CM,DEG: the extrinsic drifts this far by the last frame (a loosening mount); "
+            "at most 100 cm and 45°."
+        ),
     ] = None,
     fmt: Annotated[
         str, typer.Option("--format", help="kitti (KITTI odometry layout) or bag (a ROS 2 bag folder).")
@@ -328,7 +346,7 @@ def _terminate(signum: int, frame: object) -> None:
 def main() -> None:
     """Console entry point: an error supportnet raises on purpose (data, config, numerical) and
     an operating-system error on a named file end in one line on stderr and exit code 2
-    (``--debug``: the traceback); Ctrl-C and SIGTERM abort (code 1) and leave nothing behind."""
+    (``--debug``: the traceback); Ctrl-C and SIGTERM end with code 130 and leave nothing behind."""
     import os
     import signal
 

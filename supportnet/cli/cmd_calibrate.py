@@ -132,6 +132,12 @@ def _markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def support_paths(text: str) -> list[Path]:
+    """The maps folders and models ``--support`` reads (an output may not replace them)."""
+    items = (item.strip().partition(":") for item in text.split(","))
+    return [Path(arg) for kind, _, arg in items if kind in ("offline", "onnx") and arg]
+
+
 def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9]+", "_", name).strip("_")
 
@@ -151,7 +157,10 @@ def run_calibrate(
 ) -> dict:
     """Paired runs of Stage 4 for every support; returns what ``result.json`` holds."""
     console = console or make_console()
-    claim_output(out, overwrite, [data])
+    inputs = [data, *support_paths(supports_text)]
+    if init_text.startswith("file:"):
+        inputs.append(Path(init_text[len("file:") :]))
+    claim_output(out, overwrite, inputs)
     if runs < 1:
         raise ConfigError("--runs", f"must be at least 1, got {runs}")
     init_kind, init_arg = parse_init(init_text)
@@ -217,7 +226,7 @@ def run_calibrate(
         "config": config.model_dump(mode="json"),
         "wall_s": time.perf_counter() - start,
     }
-    with atomic_output(out, overwrite, [data], command="calibrate") as tmp:
+    with atomic_output(out, overwrite, inputs, command="calibrate") as tmp:
         write_json(tmp / "result.json", output)
         (tmp / "summary.md").write_text(_markdown(output))
         (tmp / "config.yaml").write_text(resolved_config(config))

@@ -25,7 +25,7 @@ from calib.pipeline import OnlineCalibrator
 from calib.refine.passes import CalibrateConfig
 from calib.refine.tracking import departure
 from calib.results import SCHEMA_VERSION
-from supportnet.cli.cmd_calibrate import parse_init
+from supportnet.cli.cmd_calibrate import parse_init, support_paths
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.runtime.matcher_factory import build_matcher
@@ -71,7 +71,8 @@ def run_online(
     """Calibrate ``data`` as a stream (:class:`calib.pipeline.OnlineCalibrator`); returns what
     ``estimates.json`` holds."""
     console = console or make_console()
-    claim_output(out, overwrite, [data])
+    inputs = [data, *support_paths(support_text)]
+    claim_output(out, overwrite, inputs)
     online = config.online
     supports = parse_supports(support_text, config.support_map)
     if len(supports) != 1:
@@ -132,7 +133,7 @@ def run_online(
         "wall_s": time.perf_counter() - start,
         "config": config.model_dump(mode="json"),
     }
-    with atomic_output(out, overwrite, [data], command="calibrate --online") as tmp:
+    with atomic_output(out, overwrite, inputs, command="calibrate --online") as tmp:
         write_json(tmp / "estimates.json", output)
         _write_csv(rows, tmp / "estimates.csv")
         _plot(

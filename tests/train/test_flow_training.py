@@ -8,11 +8,12 @@ from calib.data import open_dataset
 from calib.errors import DataError
 from calib.match.edge_matcher import EdgeMatcherConfig
 from export.onnx_export import export_onnx
+from supportnet.nets.flow_net import image_orientation
 from supportnet.runtime.flow_matcher import FlowMatcher
 from supportnet.runtime.matcher_factory import build_matcher
 from train.fit import run_train_flow
 from train.flow_data import curriculum_bound, flow_sample, load_scans
-from train.flow_module import sequence_loss
+from train.flow_module import MIRROR_SIGNS, sequence_loss
 from train.train_config import FlowDataConfig, FlowTrainConfig, load_train_config
 
 
@@ -129,3 +130,11 @@ def test_a_typo_in_the_flow_config_fails_loudly(tiny, tmp_path):
     path.write_text(json.dumps({"data": {"sources": tiny[1], "crops": [64, 96]}}))
     with pytest.raises(DataError, match="crops"):
         load_train_config(path, [], FlowTrainConfig)
+
+
+def test_mirror_signs_turn_the_field_of_a_mirrored_image():
+    image = torch.rand(1, 3, 16, 20)
+    sign = torch.tensor(MIRROR_SIGNS["lidar"][3:]).view(1, 2, 1, 1)
+    assert torch.allclose(
+        image_orientation(image.flip(-1)), image_orientation(image).flip(-1) * sign, atol=1e-5
+    )

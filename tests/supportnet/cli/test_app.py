@@ -135,3 +135,28 @@ def test_synth_config_typo_is_one_line_error(tmp_path):
     assert result.returncode == 2
     assert "timing.camera_ofset_s" in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "d" / "sequences").exists()
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["info"],
+        ["maps", "--out", "{out}"],
+        ["predict", "--out", "{out}"],
+        ["analyze", "--out", "{out}"],
+        ["init-calib", "--out", "{out}"],
+        ["calibrate", "--out", "{out}"],
+        ["calibrate", "--online", "--out", "{out}"],
+    ],
+)
+def test_every_command_that_opens_a_dataset_takes_camera(tmp_path, command):
+    """Issue 19, defect 10: `--camera` reaches the reader everywhere (an absent one is refused
+    with the list of cameras present, before anything is written)."""
+    write_kitti_odometry(tmp_path / "data", "00", make_frames())
+    args = [a.replace("{out}", str(tmp_path / "out")) for a in command]
+    data = [tmp_path / "data"] if command == ["info"] else ["--data", tmp_path / "data"]
+    result = run_cli(*args[:1], *data, *args[1:], "--camera", "5")
+    assert result.returncode == 2, result.stderr
+    assert "no camera 5 (image_5 not found); available cameras: 2" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
+    assert not (tmp_path / "out").exists()

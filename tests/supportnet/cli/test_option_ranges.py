@@ -47,6 +47,10 @@ RANGE_ERRORS = [
     (SYNTH + ["--seed", str(2**32)], ["--seed: must be an integer from 0 to 2^32 - 1", "got 4294967296"]),
     (SYNTH + ["--drift", "nan,1"], ["--drift: sizes must be 0 to 100 cm and 0 to 45°", "'nan,1'"]),
     (SYNTH + ["--workers", "0"], ["--workers: must be from 1 to 256, got 0"]),
+    (
+        ["synth", "--world", "urban", "--out", "out", "--frames", "0"],
+        ["--frames: must be from 1 to 100000, got 0"],
+    ),
     (CALIBRATE + ["--seed", "-1"], ["--seed: must be an integer from 0 to 2^32 - 1", "got -1"]),
     (CALIBRATE + ["--seed", str(2**32)], ["--seed: ", "got 4294967296"]),
     (CALIBRATE + ["--runs", "0"], ["--runs: must be from 1 to 1000, got 0"]),

@@ -93,9 +93,11 @@ def other_vineyard(tmp_path_factory):
         ["analyze", "--data", "nowhere"],
         ["init-calib", "--data", "nowhere"],
         ["maps", "--data", "nowhere"],
+        ["calibrate", "--data", "nowhere"],
+        ["calibrate", "--online", "--data", "nowhere"],
         ["demo"],
     ],
-    ids=lambda c: c[0],
+    ids=["predict", "analyze", "init-calib", "maps", "calibrate", "calibrate-online", "demo"],
 )
 def test_out_dot_overwrite_refuses_and_deletes_nothing(command, vineyard, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)

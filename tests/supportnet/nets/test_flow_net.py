@@ -14,7 +14,6 @@ from supportnet.nets.flow_net import (
     lidar_input,
     lookup,
 )
-from train.flow_module import MIRROR_SIGNS
 
 SMALL = FlowConfig(feature_dim=16, hidden_dim=16, context_dim=8, levels=2, radius=2, iterations=3)
 
@@ -111,14 +110,6 @@ def test_image_orientation_agrees_with_the_edge_matcher():
         / np.linalg.norm(theirs, axis=0)[strong]
     )
     assert np.median(cosine) > 0.95  # the same edge angles; strengths are normalised differently
-
-
-def test_mirror_signs_turn_the_field_of_a_mirrored_image():
-    image = torch.rand(1, 3, 16, 20)
-    sign = torch.tensor(MIRROR_SIGNS["lidar"][3:]).view(1, 2, 1, 1)
-    assert torch.allclose(
-        image_orientation(image.flip(-1)), image_orientation(image).flip(-1) * sign, atol=1e-5
-    )
 
 
 def test_edge_features_keep_where_in_the_cell_an_edge_lies():
