@@ -144,6 +144,8 @@ def load_sequence_maps(maps_dir: Path, keys: tuple[str, ...] = ("support",)) -> 
     maps_dir = Path(maps_dir)
     if not maps_dir.is_dir():
         raise DataError(maps_dir, "maps folder not found; make maps with `supportnet maps`")
+    if not (maps_dir / "sequence.npz").exists():
+        raise DataError(maps_dir / "sequence.npz", "not found; make maps with `supportnet maps`")
     return load_npz(maps_dir / "sequence.npz", keys)
 
 

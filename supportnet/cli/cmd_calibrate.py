@@ -29,11 +29,12 @@ from calib.pipeline import Calibrator, select_frames
 from calib.projection import project_scan
 from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
+from calib.support.map_files import check_maps_fingerprint
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.report.pictures import colourise, draw_projection
 from supportnet.runtime.matcher_factory import build_matcher
-from supportnet.runtime.support_sources import parse_supports
+from supportnet.runtime.support_sources import offline_maps_folders, parse_supports
 
 __all__ = ["MAX_PERTURBATION", "paired_wins", "parse_init", "run_calibrate"]
 
@@ -168,6 +169,8 @@ def run_calibrate(
     supports = parse_supports(supports_text, config.support_map)
     start = time.perf_counter()
     with open_dataset(data, sequence=sequence, camera=camera) as seq:
+        for maps in offline_maps_folders(supports):
+            check_maps_fingerprint(maps, seq)
         T_ref = seq.calibration.T_cam_lidar
         if init_kind == "perturb" and T_ref is None:
             raise DataError(data, "has no reference calibration to perturb; use --init file:PATH")

@@ -25,11 +25,12 @@ from calib.pipeline import OnlineCalibrator
 from calib.refine.passes import CalibrateConfig
 from calib.refine.tracking import departure
 from calib.results import SCHEMA_VERSION
+from calib.support.map_files import check_maps_fingerprint
 from supportnet.cli.cmd_calibrate import parse_init, support_paths
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.runtime.matcher_factory import build_matcher
-from supportnet.runtime.support_sources import parse_supports
+from supportnet.runtime.support_sources import offline_maps_folders, parse_supports
 
 __all__ = ["run_online", "true_extrinsics"]
 
@@ -86,6 +87,8 @@ def run_online(
     start = time.perf_counter()
     rows = []
     with open_dataset(data, sequence=sequence, camera=camera) as seq:
+        for maps in offline_maps_folders(supports):
+            check_maps_fingerprint(maps, seq)
         T_file = seq.calibration.T_cam_lidar
         if T_file is None and init_kind != "file":
             raise DataError(data, "has no calibration on file; start from --init file:PATH")

@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 
 from calib.data.types import Frame
-from calib.errors import ConfigError, DataError
+from calib.errors import ConfigError
+from calib.support.map_files import load_sequence_maps
 from calib.support.source import MapSupport, SupportSource, UniformSupport
 from supportnet.runtime.support_predictor import SHIPPED_MODEL, SupportPredictor
 
-__all__ = ["PredictedSupport", "parse_supports", "resolve_support"]
+__all__ = ["PredictedSupport", "offline_maps_folders", "parse_supports", "resolve_support"]
 
 
 class PredictedSupport:
@@ -73,17 +74,15 @@ def parse_supports(text: str, support_map: str = "support") -> list[SupportSourc
 
 
 def _offline_map(maps: Path, key: str) -> np.ndarray:
-    """The whole-sequence map ``key`` of a ``supportnet maps`` folder."""
-    path = maps / "sequence.npz"
-    if not path.is_file():
-        raise DataError(path, "not found; make offline maps with `supportnet maps`")
-    try:
-        with np.load(path) as data:
-            values = np.asarray(data[key], np.float32)
-    except KeyError:
-        raise DataError(path, f"holds no {key!r} map; remake it with `supportnet maps`") from None
-    except (OSError, ValueError) as exc:
-        raise DataError(path, f"is not a readable maps file ({exc})") from None
-    if values.ndim != 2 or not np.isfinite(values).all():
-        raise DataError(path, f"{key!r} is not a finite (H, W) map")
-    return values
+    """The whole-sequence map ``key`` of a ``supportnet maps`` folder (any unreadable file is one
+    line naming it)."""
+    return load_sequence_maps(maps, (key,))[key]
+
+
+def offline_maps_folders(supports: list[SupportSource]) -> list[Path]:
+    """The maps folders of the ``offline:MAPS`` sources among ``supports``."""
+    return [
+        Path(s.name.partition(":")[2])
+        for s in supports
+        if isinstance(s, MapSupport) and s.name.startswith("offline:")
+    ]

@@ -82,3 +82,17 @@ def test_parse_errors_are_one_line(tmp_path):
         parse_supports("uniform,uniform", config.support_map)
     with pytest.raises(DataError, match="not uniform"):
         parse_supports("uniformm", config.support_map)
+
+
+def test_offline_maps_of_another_dataset_or_corrupt_are_refused(still_vineyard, tmp_path):
+    other = tmp_path / "other"
+    write_sequence(Synthesizer(load_synth_config("vineyard", **STILL), 3, seed=6), other, "00")
+    maps = run_maps(other, "00", tmp_path / "maps_other", load_maps_config())
+    with pytest.raises(DataError, match="another dataset"):
+        run_calibrate(still_vineyard, "00", f"offline:{maps}", "perturb:10,2", tmp_path / "cal", FAST)
+    assert not (tmp_path / "cal").exists()
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "sequence.npz").write_bytes(b"not a zip file")
+    with pytest.raises(DataError, match="not a readable maps file"):
+        parse_supports(f"offline:{broken}")
