@@ -25,6 +25,7 @@ from calib.init.motion_init import Stage1Config, initial_calibration, load_stage
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
 from calib.observability import weak_directions
+from calib.refine.global_search import global_search
 from calib.refine.passes import CalibrateConfig, load_calibrate_config, refine_passes
 from calib.refine.tracking import OnlineState, departure, extrinsic_of
 from calib.results import CalibrationResult, OnlineEstimate
@@ -99,8 +100,12 @@ class Calibrator:
         T_init = _checked_extrinsic(T_init, "T_init")
         picks = select_frames(len(seq), self.config.frames)
         frames = [seq[int(i)] for i in picks]
+        T_coarse, coarse = T_init, []
+        if self.config.coarse.enabled:  # Stage 4, coarse: edge alignment where the matcher cannot reach
+            search = global_search(frames, T_init, self.config.coarse)
+            T_coarse, coarse = search.T_cam_lidar, search.levels
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
-            frames, T_init, self.matcher, self.support, self.config, np.random.default_rng(seed)
+            frames, T_coarse, self.matcher, self.support, self.config, np.random.default_rng(seed)
         )
         covariance_t, covariance_r = passes.covariance[:3, :3], passes.covariance[3:, 3:]
         weak = weak_directions(
@@ -120,6 +125,7 @@ class Calibrator:
             correspondences=passes.correspondences,
             runtime_s=time.perf_counter() - start,
             passes=passes.passes,
+            coarse=coarse,
             weak_directions=weak,
         )
 

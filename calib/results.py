@@ -49,6 +49,8 @@ class CalibrationResult:
         correspondences: how many the last pass used.
         runtime_s: seconds.
         passes: one dict per pass (iterations, cost, correspondences, update).
+        coarse: one dict per scale of the global coarse stage (σ, score before and after), or
+            empty when it did not run.
         weak_directions: directions whose std passes the config's thresholds.
         time_offset_s, time_offset_std_s: camera minus LiDAR time, when estimated (else ``None``).
     """
@@ -62,6 +64,7 @@ class CalibrationResult:
     correspondences: int
     runtime_s: float
     passes: list[dict] = field(default_factory=list)
+    coarse: list[dict] = field(default_factory=list)
     weak_directions: list[WeakDirection] = field(default_factory=list)
     time_offset_s: float | None = None
     time_offset_std_s: float | None = None
@@ -102,6 +105,7 @@ class CalibrationResult:
             "frame_indices": list(self.frame_indices),
             "correspondences": self.correspondences,
             "runtime_s": self.runtime_s,
+            "coarse": self.coarse,
             "passes": self.passes,
         }
 

@@ -9,24 +9,44 @@ from __future__ import annotations
 import os
 import pickle
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from calib.data import Frame, open_dataset
-from calib.data.io import format_kv_line, read_kv_file, read_pcd_fields
+from calib.data.io import format_kv_line, read_kv_file, read_pcd_fields, write_bin
 
 __all__ = [
     "AMZ_DRIVE",
+    "AMZ_DRIVE_MORE",
+    "NUSCENES_CAMERAS",
     "PJLAB_SCENES",
+    "CheckFixture",
+    "check_fixtures",
+    "custom_from_nuscenes",
     "custom_from_pjlab",
+    "custom_from_pjlab_scanlines",
+    "kitti_object_from_cvml",
     "kitti_object_from_mmdet",
     "real_scenes",
     "realdata_root",
+    "scanline_order",
 ]
 
 AMZ_DRIVE = "amz_kitti_raw_0928/data/0928-KITTI-dataset"
+AMZ_DRIVE_MORE = "amz_kitti_raw_0928_more/data/0928-KITTI-dataset"
+CVML_KITTI = "cvml_kitti_object_000114/projections/lidar_camera_projection/data"
+NUSCENES = "mmdet3d_demo/demo/data/nuscenes"
+NUSCENES_CAMERAS = (
+    "CAM_FRONT",
+    "CAM_FRONT_RIGHT",
+    "CAM_BACK_RIGHT",
+    "CAM_BACK",
+    "CAM_BACK_LEFT",
+    "CAM_FRONT_LEFT",
+)
 MMDET_KITTI = "mmdet3d_demo/demo/data/kitti"
 PJLAB = "sensorscalib_pjlab/lidar2camera/auto_calib_v2.0/data/ours"
 PJLAB_SCENES = ("1", "2", "3")
@@ -98,3 +118,100 @@ def real_scenes(realdata: Path, workdir: Path) -> list[tuple[str, Frame, np.ndar
             ring = read_pcd_fields(seq.scan_paths[0])[0]["ring"].astype(np.int64)
             scenes.append((f"pjlab {scene}", seq[0], ring))
     return scenes
+
+
+def scanline_order(points_lidar: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """``(N,)`` indices putting a scan stored in firing order (every laser of a column, then the
+    next column: nuScenes, PJLab) into scan-line order (ring by ring, each by azimuth), the order
+    KITTI's Velodyne scans are stored in and :func:`calib.features.depth_discontinuities` reads
+    neighbours from when it gets no ring."""
+    xyz = np.asarray(points_lidar, np.float64)
+    return np.lexsort((np.arctan2(xyz[:, 1], xyz[:, 0]), np.asarray(ring)))
+
+
+def kitti_object_from_cvml(realdata: Path, out: Path) -> Path:
+    """Link cvml's KITTI object frame 000114 (full scan, colour camera 2, KITTI object file
+    formats under other names) into a KITTI object split. Returns the split folder."""
+    src = Path(realdata) / CVML_KITTI
+    out = Path(out)
+    names = {
+        "calib/000114.txt": "000114_calib.txt",
+        "image_2/000114.png": "000114_image.png",
+        "velodyne/000114.bin": "000114.bin",
+    }
+    for target, source in names.items():
+        (out / target).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src / source, out / target)
+    return out
+
+
+def custom_from_nuscenes(realdata: Path, camera: str, out: Path) -> Path:
+    """Write one camera of the mmdet3d nuScenes sample as a custom folder: its 1600x900 JPEG, the
+    LIDAR_TOP scan (``x, y, z, intensity`` of the five stored columns, put in scan-line order by
+    the fifth, the ring) and ``calibration.yaml`` with the pickle's ``cam2img`` as ``K`` and its
+    ``lidar2cam`` as ``T_cam_lidar`` (mmdet3d's ``lidar2cam`` maps LiDAR points into the camera,
+    as ``T_cam_lidar`` does). Returns the folder."""
+    src = Path(realdata) / NUSCENES
+    if camera not in NUSCENES_CAMERAS:
+        raise ValueError(f"unknown nuScenes camera {camera!r}; one of {', '.join(NUSCENES_CAMERAS)}")
+    pickle_path = next(src.glob("*.pkl"))
+    with open(pickle_path, "rb") as handle:
+        info = pickle.load(handle)["data_list"][0]
+    cam = info["images"][camera]
+    scan = np.fromfile(src / Path(info["lidar_points"]["lidar_path"]).name, np.float32).reshape(-1, 5)
+    scan = scan[scanline_order(scan[:, :3], scan[:, 4].astype(np.int64))]
+    out = Path(out)
+    (out / "camera").mkdir(parents=True, exist_ok=True)
+    (out / "lidar").mkdir(exist_ok=True)
+    shutil.copyfile(src / Path(cam["img_path"]).name, out / "camera" / "000000.jpg")
+    write_bin(out / "lidar" / "000000.bin", scan[:, :4])
+    spec = {
+        "K": np.asarray(cam["cam2img"], np.float64)[:3, :3].tolist(),
+        "T_cam_lidar": np.asarray(cam["lidar2cam"], np.float64).tolist(),
+    }
+    (out / "calibration.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
+    return out
+
+
+def custom_from_pjlab_scanlines(realdata: Path, scene: str, out: Path) -> Path:
+    """:func:`custom_from_pjlab` with the scan written as ``.bin`` in scan-line order (by its
+    ``ring`` field; the PCD is stored in firing order), for methods that read neighbours along
+    scan lines from the stored order. Per-point times are dropped."""
+    out = custom_from_pjlab(realdata, scene, out)
+    pcd = out / "lidar" / "000000.pcd"
+    fields = read_pcd_fields(pcd)[0]
+    points = np.column_stack([fields[k] for k in ("x", "y", "z", "intensity")]).astype(np.float32)
+    points = points[scanline_order(points[:, :3], fields["ring"].astype(np.int64))]
+    write_bin(out / "lidar" / "000000.bin", points[np.isfinite(points).all(1)])
+    pcd.unlink()
+    return out
+
+
+@dataclass(frozen=True)
+class CheckFixture:
+    """One real dataset as ``open_dataset`` takes it: ``path``, with ``camera`` (or ``None``)."""
+
+    name: str
+    path: Path
+    camera: str | None = None
+
+
+def check_fixtures(realdata: Path, workdir: Path) -> list[CheckFixture]:
+    """Every real fixture with a reference extrinsic, one dataset each, converted where needed
+    into ``workdir``: the two KITTI raw 2011_09_28 folders (grey camera 0), KITTI object 000008
+    (cropped scan) and 000114 (full scan), the six nuScenes cameras and the three PJLab scenes
+    (scans in scan-line order)."""
+    realdata, workdir = Path(realdata), Path(workdir)
+    fixtures = [
+        CheckFixture("kitti-raw-0928", realdata / AMZ_DRIVE, "0"),
+        CheckFixture("kitti-raw-0928-more", realdata / AMZ_DRIVE_MORE, "0"),
+        CheckFixture("kitti-object-000008", kitti_object_from_mmdet(realdata, workdir / "kitti_000008")),
+        CheckFixture("kitti-object-000114", kitti_object_from_cvml(realdata, workdir / "kitti_000114")),
+    ]
+    for camera in NUSCENES_CAMERAS:
+        folder = custom_from_nuscenes(realdata, camera, workdir / f"nuscenes_{camera.lower()}")
+        fixtures.append(CheckFixture(f"nuscenes-{camera.lower().replace('_', '-')}", folder))
+    for scene in PJLAB_SCENES:
+        folder = custom_from_pjlab_scanlines(realdata, scene, workdir / f"pjlab_{scene}")
+        fixtures.append(CheckFixture(f"pjlab-{scene}", folder))
+    return fixtures

@@ -45,6 +45,7 @@ from supportnet.report.demo_page import (
     write_demo_page,
 )
 from supportnet.report.document import Document, Figure, to_markdown
+from supportnet.report.pictures import trajectories_chart
 
 __all__ = ["run_demo", "synthetic_scenes"]
 
@@ -172,14 +173,21 @@ def world_figures(root: Path, world: WorldRun) -> None:
         stats,
         f"{world.label}: {world.classes.get('matcher', 'edge')} matcher residuals under the reference",
         f"Residuals by class, {world.label}, under the reference extrinsic (the paper's Experiments 1 "
-        f"and 2; {world.classes.get('frames', '?')} frames).",
+        "and 2).",
+        alt=f"{w}: matcher residuals by class",
     )
-    if "refused" not in world.stage1:
+    stage1 = folder / "stage1"
+    if "refused" not in world.stage1 and (stage1 / "lidar.kitti").is_file():
+        rel = f"figures/{w}_stage1_trajectories.png"
+        poses = [_kitti_poses(stage1 / name) for name in ("lidar.kitti", "camera.kitti")]
+        trajectories_chart(*poses, root / rel, f"Stage 1 trajectories, {world.label}, camera-0 frame")
         world.figures["trajectories"] = Figure(
-            f"{world.folder}/stage1/trajectories.png",
+            rel,
             f"Stage 1 trajectories, {world.label}, in the camera-0 frame, from above (left) and from "
             "the side (right): the blue line is LiDAR odometry (KISS-ICP), the orange dots are the "
-            "visual odometry keyframes, scaled and aligned by the hand–eye solve.",
+            "visual odometry keyframes, scaled and aligned by the hand–eye solve (both are in "
+            f"[`{world.folder}/stage1/`]({world.folder}/stage1/) as KITTI and TUM pose files).",
+            alt=f"{w}: Stage 1 trajectories",
         )
     results = world.stage4["results"]
     first_run = {name: r["runs"][0] for name, r in results.items()}
@@ -214,6 +222,7 @@ def world_figures(root: Path, world: WorldRun) -> None:
                 ],
                 f"Stage 4 with {label}, {world.label}, frame {frame.index}: the scan under the initial "
                 f"extrinsic (top) and under the estimate (bottom), first paired run.{errors}",
+                alt=f"{w}: overlay before and after Stage 4 with {label}",
             )
             if name == "uniform":
                 continue
@@ -230,11 +239,20 @@ def world_figures(root: Path, world: WorldRun) -> None:
                 frame.image,
                 values,
                 f"Support map `{name}`, {kind}; {world.label}, frame {frame.index}.",
+                alt=f"{w}: support map {name}",
             )
     offline = [v for k, v in maps.items() if k.startswith("offline")]
     predicted = [v for k, v in maps.items() if k.startswith("onnx")]
     if offline and predicted and offline[0].std() > 0 and predicted[0].std() > 0:
         world.map_agreement = float(np.corrcoef(offline[0].ravel(), predicted[0].ravel())[0, 1])
+
+
+def _kitti_poses(path: Path) -> np.ndarray:
+    """``(N, 4, 4)`` poses of a KITTI pose file (one row-major 3x4 matrix a line)."""
+    rows = np.loadtxt(path, ndmin=2).reshape(-1, 3, 4)
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    poses[:, :3] = rows
+    return poses
 
 
 def _project(frame: Frame, T: np.ndarray) -> ProjectedScan:
@@ -256,4 +274,5 @@ def convention_figure(root: Path, name: str, frame: Frame) -> Figure:
         f"{name}: the scan under the reference extrinsic, read through its layout's convention (top), "
         "and under the reference rotated by 1° (bottom); under the right convention depth edges meet "
         "image edges.",
+        alt=f"{name}: reference and 1 degree perturbed",
     )

@@ -19,10 +19,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.data.io import read_image, write_image
+from calib.data.io import read_image
 from calib.projection import ProjectedScan
 from calib.support.class_residuals import ClassStats, classwise_average
-from supportnet.report.document import BulletList, Document, Figure, Paragraph, Table, to_markdown
+from supportnet.report.document import (
+    BulletList,
+    Document,
+    Figure,
+    Paragraph,
+    Table,
+    plain_text,
+    to_markdown,
+)
 from supportnet.report.html_page import to_html
 from supportnet.report.pictures import (
     DEPTH_CMAP,
@@ -30,6 +38,7 @@ from supportnet.report.pictures import (
     class_residual_chart,
     colour_bar,
     colour_bar_height,
+    colour_names,
     colourise,
     depth_bar,
     draw_projection,
@@ -63,18 +72,32 @@ COLOUR_WORDS = (
     "black",
     "white",
 )
-MAX_FIGURE_WIDTH = 1280
+MAX_FIGURE_WIDTH = 1100
 """Wider pictures are scaled down before they are written (the HTML page embeds every one)."""
 
 
 def _names_of(rgb: np.ndarray) -> list[str]:
-    from supportnet.report.pictures import _names
-
-    return list(_names(np.asarray(rgb, dtype=np.uint8).reshape(-1, 3)))
+    return list(colour_names(np.asarray(rgb, dtype=np.uint8).reshape(-1, 3)))
 
 
 def _mode(names: list[str]) -> str:
     return Counter(names).most_common(1)[0][0]
+
+
+def _short(text: str) -> str:
+    """A figure's alt text: the first clause of its caption."""
+    return re.split(r"[.:;]\s", plain_text(text), maxsplit=1)[0]
+
+
+def _write_png(path: Path, picture: np.ndarray) -> None:
+    """``picture (H, W, 3)`` RGB as a PNG, compressed hard (the HTML page embeds every figure)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ok, encoded = cv2.imencode(
+        ".png", cv2.cvtColor(picture, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 9]
+    )
+    if not ok:
+        raise ValueError(f"could not encode {path}")
+    encoded.tofile(path)
 
 
 def _fit(picture: np.ndarray) -> np.ndarray:
@@ -94,18 +117,28 @@ def projection_figure(
     rel: str,
     panels: list[tuple[str, np.ndarray, ProjectedScan]],
     what: str,
-    max_depth: float = MAX_DEPTH_M,
+    max_depth: float | None = None,
+    alt: str = "",
 ) -> Figure:
     """Panels ``(label, image, projected)`` stacked top to bottom, each the scan drawn on its
     image by depth and tagged with its label, the depth colour bar underneath; written to
     ``root / rel``. The caption is ``what`` and the colours the nearest and farthest tenth of the
-    drawn points actually have."""
-    drawn = [tag(draw_projection(image, projected, max_depth), label) for label, image, projected in panels]
+    drawn points actually have.
+
+    ``max_depth`` (the far end of the colour map) defaults to the 95th percentile of the depths
+    rounded up to 5 m (at least 10 m), so a scene's depths use the whole colour map. Points are
+    single pixels on images narrower than 1000 pixels (they would hide the image otherwise)."""
+    depths = np.concatenate([p.depth for _, _, p in panels])
+    if max_depth is None:
+        max_depth = max(10.0, 5.0 * np.ceil(np.quantile(depths, 0.95) / 5.0)) if len(depths) else MAX_DEPTH_M
+    drawn = [
+        tag(draw_projection(image, projected, max_depth, 0 if image.shape[1] < 1000 else None), label)
+        for label, image, projected in panels
+    ]
     width = max(p.shape[1] for p in drawn)
     drawn = [np.pad(p, ((0, 0), (0, width - p.shape[1]), (0, 0)), constant_values=255) for p in drawn]
     content = _fit(np.concatenate(drawn, axis=0))
-    write_image(root / rel, np.concatenate([content, depth_bar(content.shape[1], max_depth)], axis=0))
-    depths = np.concatenate([p.depth for _, _, p in panels])
+    _write_png(root / rel, np.concatenate([content, depth_bar(content.shape[1], max_depth)], axis=0))
     caption = what
     if len(depths):
         near, far = np.quantile(depths, [0.1, 0.9])
@@ -117,16 +150,18 @@ def projection_figure(
             f"colour bar underneath): the nearest tenth (up to {near:.0f} m) are mostly {near_name}, "
             f"the farthest tenth (from {far:.0f} m) mostly {far_name}."
         )
-    return Figure(rel, caption, alt=what.split(".")[0])
+    return Figure(rel, caption, alt=alt or _short(what))
 
 
-def support_figure(root: Path, rel: str, image: np.ndarray, values: np.ndarray, what: str) -> Figure:
+def support_figure(
+    root: Path, rel: str, image: np.ndarray, values: np.ndarray, what: str, alt: str = ""
+) -> Figure:
     """The image (top) above the map ``values (H, W)`` in [0, 1] (viridis, colour bar underneath),
     written to ``root / rel``; the caption names the colours most of the map and its strongest
     1 % have."""
     content = _fit(np.concatenate([image, colourise(values)], axis=0))
     bar = colour_bar(content.shape[1], "viridis", "0", "1", "support s (0 = no evidence, 1 = the strongest)")
-    write_image(root / rel, np.concatenate([content, bar], axis=0))
+    _write_png(root / rel, np.concatenate([content, bar], axis=0))
     flat = np.clip(np.asarray(values, dtype=np.float64).ravel(), 0, 1)
     top = np.quantile(flat, 0.99)
     step = max(1, len(flat) // 20000)  # a sample is enough to find the commonest colours
@@ -138,10 +173,12 @@ def support_figure(root: Path, rel: str, image: np.ndarray, values: np.ndarray, 
         f"the strongest 1 % of pixels (support {top:.2f} and above, at most {flat.max():.2f}) are "
         f"mostly {_mode(_names_of(colourise(strongest)))}."
     )
-    return Figure(rel, caption, alt=what.split(".")[0])
+    return Figure(rel, caption, alt=alt or _short(what))
 
 
-def class_chart_figure(root: Path, rel: str, stats: list[ClassStats], title: str, what: str) -> Figure:
+def class_chart_figure(
+    root: Path, rel: str, stats: list[ClassStats], title: str, what: str, alt: str = ""
+) -> Figure:
     """The paper's class-wise chart (:func:`class_residual_chart`) written to ``root / rel``; the
     caption names red only when a class is above the class-wise average, grey only when one is
     below."""
@@ -162,7 +199,7 @@ def class_chart_figure(root: Path, rel: str, stats: list[ClassStats], title: str
         + f" (the dashed black line: the average, {average[0]:.2f} px and {average[1]:.2f} px); "
         "black dots joined by a line: each class's median."
     )
-    return Figure(rel, caption, alt=what.split(".")[0])
+    return Figure(rel, caption, alt=alt or _short(what))
 
 
 def caption_colour_problems(root: Path, figures: list[Figure]) -> list[str]:
@@ -295,7 +332,7 @@ def _stage4_comments(world: WorldRun) -> list[str]:
         return []
     base = results["uniform"]
     bt, br = base["summary"]["translation_cm"], base["summary"]["rotation_deg"]
-    out = []
+    out = [c for c in (_translation_floor(world),) if c]
     for name, r in results.items():
         if name == "uniform" or not r.get("summary"):
             continue
@@ -333,6 +370,51 @@ def _stage4_comments(world: WorldRun) -> list[str]:
     return out
 
 
+def _translation_floor(world: WorldRun) -> str:
+    """When every support leaves much of the initial translation error: say so, and where it is."""
+    results = world.stage4["results"]
+    initial = [
+        r["initial_error"]["translation_cm"]
+        for x in results.values()
+        for r in x["runs"]
+        if r.get("initial_error")
+    ]
+    finals = {name: x["summary"]["translation_cm"]["mean"] for name, x in results.items() if x.get("summary")}
+    if not initial or not finals or min(finals.values()) < 0.5 * float(np.mean(initial)):
+        return ""
+    start = float(np.mean(initial))
+    rot0 = np.mean([r["initial_error"]["rotation_deg"] for x in results.values() for r in x["runs"]])
+    rot1 = np.mean([x["summary"]["rotation_deg"]["mean"] for x in results.values() if x.get("summary")])
+    text = (
+        f"On {world.world}, Stage 4 removes only {1 - max(finals.values()) / start:.0%} to "
+        f"{1 - min(finals.values()) / start:.0%} of the initial translation error (from {start:.1f} cm to "
+        f"{min(finals.values()):.1f}–{max(finals.values()):.1f} cm, whatever the support), while the "
+        f"rotation error falls from {rot0:.2f}° to {rot1:.2f}°"
+    )
+    try:
+        axes = np.mean(
+            [np.abs(r["error"]["translation_xyz_cm"]) for x in results.values() for r in x["runs"]], axis=0
+        )
+        k = int(np.argmax(axes))
+        text += (
+            f". What remains lies mostly along camera {('x (right)', 'y (down)', 'z (forward)')[k]}, "
+            f"{axes[k]:.1f} cm of it on average"
+        )
+        stds = [r["std_cm"] for x in results.values() for r in x["runs"] if r.get("std_cm") is not None]
+        if stds:
+            text += (
+                f"; the refinement's own translation uncertainty is at most {max(stds):.1f} cm, so the "
+                "residual is a bias, not noise: likely the matcher's residuals, which are correlated "
+                "across points, pull translation (weakly observed by far points) off the reference"
+                if max(stds) < 0.5 * min(finals.values())
+                else f"; the refinement's own translation uncertainty is up to {max(stds):.1f} cm: "
+                "translation is weakly observed on this sequence"
+            )
+    except (KeyError, TypeError, ValueError):
+        pass
+    return text + "."
+
+
 def _axis_errors(runs: list[dict], key: str) -> np.ndarray:
     return np.mean([np.abs(r["error"][key]) for r in runs if r.get("error")], axis=0)
 
@@ -366,15 +448,15 @@ def _likely_reason(world: WorldRun, name: str, worse_t: bool, worse_r: bool) -> 
     except (KeyError, ValueError, TypeError):
         pass
     focus = _support_focus(world) if name.startswith("offline") else ""
-    if name.startswith("onnx") and world.map_agreement is not None:
-        focus = (
-            f"the predicted map agrees with the offline map only at Pearson r = {world.map_agreement:.2f}"
-            if world.map_agreement < 0.5
-            else ""
-        )
+    if name.startswith("onnx") and world.map_agreement is not None and world.map_agreement < 0.5:
+        focus = f"the predicted map agrees with the offline map only at Pearson r = {world.map_agreement:.2f}"
     if focus:
         reasons.append(focus)
-    if r.get("correspondences") and base.get("correspondences"):
+    if (
+        r.get("correspondences")
+        and base.get("correspondences")
+        and (abs(r["correspondences"] - base["correspondences"]) > 0.1 * base["correspondences"])
+    ):
         reasons.append(
             f"it used {r['correspondences']} correspondences in its last pass against uniform's "
             f"{base['correspondences']}"
@@ -398,7 +480,7 @@ def _support_focus(world: WorldRun) -> str:
     depth_all = float(np.average([s["median_depth_m"] for s in stats], weights=[s["points"] for s in stats]))
     s = stats[top]
     text = (
-        f"the support map puts {share[top]:.0%} of its weight on {s['name']} (median depth "
+        f"the offline map puts {share[top]:.0%} of its weight on {s['name']} (median depth "
         f"{s['median_depth_m']:.1f} m against {depth_all:.1f} m for all points)"
     )
     if s["median_depth_m"] > depth_all:
@@ -419,30 +501,50 @@ def _stage1_text(world: WorldRun) -> list[str]:
         ]
     e = s1.get("error") or {}
     he = s1.get("hand_eye_error") or {}
-    prior = s1.get("config", {}).get("translation_prior_m", [0.0, 0.0, 0.0])
+    prior = np.asarray(s1.get("config", {}).get("translation_prior_m", [0.0, 0.0, 0.0]), dtype=float)
     lines = []
     rotation = f"{e['rotation_deg']:.2f}°" if e else "unknown (no reference)"
+    motions = s1.get("motions_used", "?")
     if s1.get("translation_source") == "prior":
-        t = f"{e['translation_cm']:.1f} cm" if e else "unknown"
-        lines.append(
-            f"Stage 1 estimated the rotation from {s1.get('motions_used', '?')} motions: error "
-            f"{rotation}. The translation is the **prior (not estimated)**, "
-            f"({', '.join(f'{v:g}' for v in prior)}) m from the config's `translation_prior_m`; its "
-            f"{t} error is simply how far the real lever arm is from that prior. "
-            + (
-                f"The hand–eye solve's own translation would be off by {he['translation_cm']:.1f} cm "
-                "(a monocular camera gives only motion directions), which is why it is not used. "
-                if he
-                else ""
-            )
-            + "Stage 4 refines the translation."
+        text = (
+            f"Stage 1 estimated the rotation from {motions} motions: error {rotation}. The translation "
+            f"is the **prior (not estimated)**: ({', '.join(f'{v:g}' for v in prior)}) m, the config's "
+            "`translation_prior_m`"
         )
+        if e and s1.get("reference_T_cam_lidar"):
+            gap = 100 * np.linalg.norm(np.asarray(s1["reference_T_cam_lidar"])[:3, 3] - prior)
+            text += (
+                f"; its {e['translation_cm']:.1f} cm error is exactly how far the reference lever arm is "
+                f"from that prior ({gap:.1f} cm), not a measurement"
+            )
+        text += ". "
+        if he:
+            text += (
+                f"The hand–eye solve's own translation would be off by {he['translation_cm']:.1f} cm (a "
+                "monocular camera gives only motion directions), which is why the prior is used. "
+            )
+        lines.append(text + "Stage 4 refines the translation.")
     else:
         t = f"{e['translation_cm']:.1f} cm" if e else "unknown"
         lines.append(
-            f"Stage 1 estimated rotation and translation from {s1.get('motions_used', '?')} motions "
-            f"(translation from motion): error {rotation}, {t}."
+            f"Stage 1 estimated rotation and translation from {motions} motions (translation from "
+            f"motion): error {rotation}, {t}."
         )
+    std_deg = s1.get("std_deg")
+    if e and std_deg is not None and len(std_deg) and e["rotation_deg"] > 2.0:
+        worst = float(np.max(std_deg))
+        text = f"A {e['rotation_deg']:.1f}° rotation error is large for an initial calibration"
+        if e["rotation_deg"] > 3 * worst:
+            text += (
+                f", and {e['rotation_deg'] / worst:.1f}× the largest standard deviation Stage 1 reports "
+                f"({worst:.2f}°): its uncertainty is optimistic here (likely a bias in the visual "
+                "odometry's motion directions, which the covariance does not model)"
+            )
+        text += (
+            ". It is still inside the refinement's basin (10° / 50 cm, DESIGN.md); the demo starts "
+            "Stage 4 from a 10 cm / 2° perturbation instead, so that every support starts alike."
+        )
+        lines.append(text)
     weak = [w.get("text", str(w)) for w in s1.get("weak", [])]
     if weak:
         lines.append("Weakly observed: " + "; ".join(weak) + ".")
@@ -453,14 +555,15 @@ def _stage1_summary(world: WorldRun) -> str:
     s1 = world.stage1
     if "refused" in s1:
         reason = s1["refused"].split(":")[0].strip()
-        return f"Stage 1 refused on {world.world} ({reason}), as it should: the drive hardly rotates."
+        return f"Stage 1 refused on {world.world}, as it should: {reason}."
     e = s1.get("error")
     if not e:
         return f"Stage 1 ran on {world.world} (no reference to compare with)."
     if s1.get("translation_source") == "prior":
         return (
-            f"Stage 1 on {world.world}: rotation error {e['rotation_deg']:.2f}°; translation = the prior "
-            f"(not estimated), {e['translation_cm']:.1f} cm from the reference."
+            f"Stage 1 on {world.world}: rotation error {e['rotation_deg']:.2f}°"
+            + (" (large; see its section)" if e["rotation_deg"] > 2.0 else "")
+            + f"; translation = the prior (not estimated), {e['translation_cm']:.1f} cm from the reference."
         )
     return (
         f"Stage 1 on {world.world}: rotation error {e['rotation_deg']:.2f}°, translation error "
@@ -476,7 +579,7 @@ def _class_text(world: WorldRun) -> str:
     worst = max(stats, key=lambda s: s["mean_du"])
     best = min(stats, key=lambda s: s["mean_du"])
     text = (
-        f"{worst['name']} has the largest mean |Δu|, {worst['mean_du']:.2f} px, "
+        f"{worst['name'].capitalize()} has the largest mean |Δu|, {worst['mean_du']:.2f} px, "
         f"{worst['mean_du'] / max(best['mean_du'], 1e-9):.1f}× that of {best['name']} "
         f"({best['mean_du']:.2f} px), over {c.get('frames', '?')} frames."
     )
@@ -562,13 +665,26 @@ def _world_section(doc: Document, w: WorldRun) -> None:
     if "classes" in w.figures:
         s23.add(w.figures["classes"])
     if w.map_agreement is not None:
-        s23.add(
-            Paragraph(
-                f"The predicted map (from the image alone) and the offline map (from the matcher under "
-                f"the reference) agree with Pearson r = {w.map_agreement:.2f} on the first frame Stage 4 "
-                "used."
-            )
+        text = (
+            f"The predicted map (from the image alone) and the offline map (from the matcher under the "
+            f"reference) agree with Pearson r = {w.map_agreement:.2f} on the first frame Stage 4 used."
         )
+        if w.map_agreement < 0.3:
+            onnx = next((n for n in w.stage4["results"] if n.startswith("onnx")), None)
+            outcome = ""
+            if onnx and "uniform" in w.stage4["results"]:
+                mine = w.stage4["results"][onnx]["summary"]["translation_cm"]["mean"]
+                theirs = w.stage4["results"]["uniform"]["summary"]["translation_cm"]["mean"]
+                outcome = (
+                    f"; SGIS with it still {'beat' if mine < theirs else 'lost to'} uniform sampling "
+                    f"({mine:.2f} cm against {theirs:.2f} cm)"
+                )
+            text += (
+                " That is low: the predictor (trained on other seeds, from images alone) spreads its "
+                "support where the matcher's residuals on this sequence do not concentrate it"
+                f"{outcome}."
+            )
+        s23.add(Paragraph(text))
     s23.add(*(f for k, f in w.figures.items() if k.startswith("support:")))
     s4 = sec.section(f"{w.world.capitalize()}: Stage 4, before and after")
     comments = _stage4_comments(w)

@@ -26,7 +26,7 @@ _INLINE = re.compile(r"`([^`]+)`|\*\*([^*]+)\*\*|\[([^\]]+)\]\(([^)\s]+)\)")
 
 STYLE = """
 body { font: 15px/1.5 system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; color: #1b1b1b;
-       margin: 0 auto; max-width: 1180px; padding: 1.5em 2em 4em; }
+       margin: 0 auto; max-width: 1140px; padding: 1.5em 2em 4em; }
 h1 { font-size: 1.9em; margin-bottom: .2em; }
 h2 { font-size: 1.45em; border-bottom: 1px solid #ccc; padding-bottom: .2em; margin-top: 2em; }
 h3 { font-size: 1.15em; margin-top: 1.6em; }
@@ -41,13 +41,14 @@ td.r, th.r { text-align: right; font-variant-numeric: tabular-nums; }
 .caption { font-style: italic; margin-bottom: .2em; }
 figure { margin: 1em 0 1.8em; }
 figure img { max-width: 100%; height: auto; border: 1px solid #bbb; cursor: zoom-in; display: block; }
-figcaption { margin-top: .4em; font-size: .93em; color: #333; max-width: 95ch; }
+figcaption { margin-top: .4em; font-size: .93em; color: #333; max-width: 1100px; }
 .path { font-family: ui-monospace, monospace; font-size: .85em; color: #666; }
 nav.toc { background: #f6f6f6; border: 1px solid #ddd; padding: .5em 1.2em; margin: 1em 0; }
 nav.toc ul { margin: .2em 0; padding-left: 1.2em; }
 #zoom { position: fixed; inset: 0; background: rgba(0, 0, 0, .88); overflow: auto; cursor: zoom-out;
         z-index: 10; }
-#zoom img { display: block; margin: 1em auto; max-width: none; background: #fff; }
+#zoom img { display: block; margin: 1em auto; max-width: none; min-width: min(92vw, 1800px);
+            background: #fff; }
 """
 
 SCRIPT = """
@@ -86,6 +87,18 @@ def inline_html(text: str) -> str:
     return "".join(out)
 
 
+WIDE = 1100
+"""Pixels a figure may take on the page; narrower ones (e.g. 624-pixel synthetic images) are shown
+enlarged up to twice their size."""
+
+
+def _png_width(path: Path) -> int | None:
+    """A PNG's width from its header (``None`` for another format)."""
+    with open(path, "rb") as f:
+        head = f.read(24)
+    return int.from_bytes(head[16:20], "big") if head[:8] == b"\x89PNG\r\n\x1a\n" else None
+
+
 def _data_uri(path: Path) -> str:
     suffix = path.suffix.lower().lstrip(".")
     mime = {"png": "image/png", "jpg": "image/jpeg", "jpeg": "image/jpeg", "svg": "image/svg+xml"}[suffix]
@@ -113,8 +126,11 @@ def _block(block: Block, root: Path, number: dict[int, int]) -> str:
     if isinstance(block, Figure):
         n = number[id(block)]
         alt = html.escape(block.alt or plain_text(block.caption).split(".")[0], quote=True)
+        path = root / block.path
+        width = _png_width(path)
+        style = f' style="width: {min(2 * width, WIDE)}px"' if width and width < WIDE // 2 + 150 else ""
         return (
-            f'<figure id="figure-{n}"><img src="{_data_uri(root / block.path)}" alt="{alt}" '
+            f'<figure id="figure-{n}"><img src="{_data_uri(path)}" alt="{alt}"{style} '
             f'title="click for full size"><figcaption><strong>Figure {n}.</strong> '
             f'{inline_html(block.caption)} <span class="path">({html.escape(block.path)})</span>'
             "</figcaption></figure>"

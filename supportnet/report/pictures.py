@@ -18,6 +18,7 @@ __all__ = [
     "colour_bar",
     "colour_bar_height",
     "colour_name",
+    "colour_names",
     "colourise",
     "depth_bar",
     "draw_projection",
@@ -25,6 +26,7 @@ __all__ = [
     "map_picture",
     "named_colours",
     "tag",
+    "trajectories_chart",
     "with_colour_bar",
 ]
 
@@ -58,7 +60,7 @@ def colour_name(rgb: np.ndarray | tuple[int, int, int]) -> str:
     """The everyday name of one uint8 RGB colour (``black``, ``white``, ``grey``, ``red``,
     ``orange``, ``yellow``, ``green``, ``cyan``, ``blue``, ``purple``, ``magenta``), by hue,
     saturation and value; captions name colours with it, so a test can find them in the picture."""
-    return _names(np.asarray(rgb, dtype=np.uint8).reshape(1, 3))[0]
+    return colour_names(np.asarray(rgb, dtype=np.uint8).reshape(1, 3))[0]
 
 
 _HUES = (
@@ -74,8 +76,8 @@ _HUES = (
 )
 
 
-def _names(rgb: np.ndarray) -> np.ndarray:
-    """``rgb (N, 3)`` uint8 -> ``(N,)`` colour names (:func:`colour_name`)."""
+def colour_names(rgb: np.ndarray) -> np.ndarray:
+    """``rgb (N, 3)`` uint8 -> ``(N,)`` colour names (:func:`colour_name`), as an object array."""
     hsv = cv2.cvtColor(rgb.reshape(-1, 1, 3), cv2.COLOR_RGB2HSV_FULL).reshape(-1, 3).astype(float)
     hue, sat, val = hsv[:, 0] * 360 / 256, hsv[:, 1] / 255, hsv[:, 2] / 255
     names = np.empty(len(rgb), dtype=object)
@@ -94,7 +96,7 @@ def named_colours(picture: np.ndarray, min_pixels: int = 20) -> set[str]:
     rgb = picture.reshape(-1, 3).astype(np.uint32)
     packed, counts = np.unique(rgb[:, 0] << 16 | rgb[:, 1] << 8 | rgb[:, 2], return_counts=True)
     colours = np.column_stack([packed >> 16, packed >> 8 & 255, packed & 255]).astype(np.uint8)
-    names = _names(colours)
+    names = colour_names(colours)
     return {n for n in set(names) if counts[names == n].sum() >= min_pixels}
 
 
@@ -155,9 +157,7 @@ def map_picture(
 
 def depth_bar(width: int, max_depth: float = MAX_DEPTH_M) -> np.ndarray:
     """The legend of :func:`draw_projection`'s colours, ``width`` pixels wide."""
-    return colour_bar(
-        width, DEPTH_CMAP, "0 m (near)", f"{max_depth:g} m and beyond (far)", "depth of each LiDAR point"
-    )
+    return colour_bar(width, DEPTH_CMAP, "0 m (near)", f"{max_depth:g} m+ (far)", "LiDAR point depth")
 
 
 def tag(image: np.ndarray, text: str) -> np.ndarray:
@@ -205,6 +205,42 @@ def class_residual_chart(stats: list[ClassStats], path: Path, title: str) -> Non
     axes[0].set_title(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def trajectories_chart(lidar_poses: np.ndarray, camera_poses: np.ndarray, path: Path, title: str) -> None:
+    """Stage 1's two trajectories as a PNG, from above (x, z) and from the side (z, y), in the
+    camera-0 frame: ``lidar_poses (N, 4, 4)`` (LiDAR odometry, a line in matplotlib's first colour,
+    blue) and ``camera_poses (M, 4, 4)`` (visual odometry keyframes, dots joined by a line in its
+    second colour, orange)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    for ax, (a, b), label in zip(
+        axes, ((0, 2), (2, 1)), ("from above (x, z)", "from the side (z, y)"), strict=True
+    ):
+        ax.plot(
+            lidar_poses[:, a, 3], lidar_poses[:, b, 3], "-", color="C0", label="LiDAR odometry (KISS-ICP)"
+        )
+        ax.plot(
+            camera_poses[:, a, 3],
+            camera_poses[:, b, 3],
+            ".-",
+            color="C1",
+            ms=3,
+            label="visual odometry keyframes",
+        )
+        ax.set(title=label, xlabel="xyz"[a] + " m", ylabel="xyz"[b] + " m")
+        ax.axis("equal")
+        ax.grid(alpha=0.3)
+    axes[1].invert_yaxis()  # camera y points down
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 

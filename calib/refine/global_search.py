@@ -1,0 +1,119 @@
+"""Stage 4's global coarse stage: where the dense matcher cannot reach (its capture range is about
+a dozen pixels), climb the edge-alignment score (:class:`calib.match.edge_alignment.EdgeAlignment`)
+coarse to fine over a pyramid of blur scales ``σ``. At the coarsest scale a grid of rotations
+around the start is scored and the best few are climbed; rotation alone is searched while ``σ``
+is large (translation barely moves distant points), then all six parameters. Each scale's steps
+scale with ``σ``; a move is taken only when the score rises, so every level can only improve it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
+
+from calib.data.types import Frame
+from calib.geometry import se3_exp
+from calib.match.edge_alignment import EdgeAlignment
+
+__all__ = ["GlobalSearchConfig", "GlobalSearchResult", "global_search"]
+
+REFERENCE_FOCAL_PX = 721.0
+"""Pixel sizes of the config are for a KITTI-like focal length; other cameras scale them."""
+
+
+class GlobalSearchConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    enabled: bool = Field(
+        False, description="run the global coarse stage before the dense passes (experimental, see README)"
+    )
+    sigmas_px: tuple[PositiveFloat, ...] = Field(
+        (32.0, 16.0, 8.0, 4.0), min_length=1, description="blur scales, coarse to fine (px at f = 721)"
+    )
+    rotation_only_above_px: float = Field(12.0, gt=0, description="scales above this search rotation only")
+    grid: int = Field(5, ge=1, le=9, description="rotations per axis of the coarsest level's grid")
+    grid_spacing: float = Field(2.0, gt=0, description="grid spacing in steps of the coarsest scale")
+    starts: int = Field(3, ge=1, description="best grid cells climbed at the coarsest scale")
+    depth_m: float = Field(10.0, gt=0, description="typical depth: translation step = rotation step x this")
+    max_translation_m: float = Field(1.0, gt=0, description="translation never leaves the start by more")
+    contour_points: int = Field(1200, ge=10, description="contour points per frame")
+    max_iterations: int = Field(40, ge=1, description="climbing moves per scale")
+
+
+@dataclass(frozen=True)
+class GlobalSearchResult:
+    """``T_cam_lidar (4, 4)`` after the search; ``levels``: per scale the score before and after."""
+
+    T_cam_lidar: np.ndarray
+    levels: list[dict]
+
+
+def _steps(rotation: float, translation: float) -> torch.Tensor:
+    """``(12, 6)`` ± one step along each twist axis (translation first, as kornia's ``Se3``)."""
+    steps = torch.zeros(12, 6, dtype=torch.float64)
+    for axis in range(6):
+        size = translation if axis < 3 else rotation
+        steps[2 * axis, axis], steps[2 * axis + 1, axis] = size, -size
+    return steps if translation > 0 else steps[6:]
+
+
+def _climb(
+    score: EdgeAlignment,
+    sigma: float,
+    T: torch.Tensor,
+    rotation: float,
+    translation: float,
+    T_start: torch.Tensor,
+    config: GlobalSearchConfig,
+) -> tuple[torch.Tensor, float]:
+    """Pattern search: take the best of the 12 (or 6) neighbouring moves while it raises the
+    score, halve the steps when none does, stop at a quarter of the first step."""
+    best = float(score(T, sigma)[0])
+    smallest, moves = rotation / 4, 0
+    while rotation >= smallest and moves < config.max_iterations:
+        moves += 1
+        candidates = se3_exp(_steps(rotation, translation)) @ T
+        values = score(candidates, sigma)
+        offset = (torch.linalg.inv(T_start) @ candidates)[:, :3, 3].norm(dim=1)
+        values = torch.where(offset > config.max_translation_m, -1.0, values)
+        k = int(values.argmax())
+        if float(values[k]) > best:
+            T, best = candidates[k], float(values[k])
+        else:
+            rotation, translation = rotation / 2, translation / 2
+    return T, best
+
+
+def global_search(
+    frames: list[Frame], T_init: np.ndarray, config: GlobalSearchConfig | None = None
+) -> GlobalSearchResult:
+    """Climb the edge-alignment score from ``T_init (4, 4)`` over ``frames`` (one shared ``K``)."""
+    config = config if config is not None else GlobalSearchConfig()
+    score = EdgeAlignment(frames, config.contour_points)
+    focal = float(frames[0].K[0, 0])
+    T_start = torch.as_tensor(np.asarray(T_init, np.float64))
+    T, levels = T_start, []
+    for level, sigma_ref in enumerate(config.sigmas_px):
+        sigma = sigma_ref * focal / REFERENCE_FOCAL_PX
+        rotation = sigma / focal  # one σ of image motion, radians
+        translation = 0.0 if sigma_ref > config.rotation_only_above_px else rotation * config.depth_m
+        before = float(score(T, sigma)[0])
+        if level == 0 and config.grid > 1:
+            offsets = (torch.arange(config.grid, dtype=torch.float64) - (config.grid - 1) / 2) * (
+                config.grid_spacing * rotation
+            )
+            twists = torch.zeros(config.grid**3, 6, dtype=torch.float64)
+            twists[:, 3:] = torch.cartesian_prod(offsets, offsets, offsets)
+            cells = se3_exp(twists) @ T
+            top = score(cells, sigma).topk(min(config.starts, len(cells))).indices
+            climbed = [_climb(score, sigma, cells[i], rotation, translation, T_start, config) for i in top]
+            T, after = max(climbed, key=lambda c: c[1])
+            if after < before:  # the grid can only help
+                T, after = T_start, before
+        else:
+            T, after = _climb(score, sigma, T, rotation, translation, T_start, config)
+        levels.append({"sigma_px": sigma, "score_before": before, "score_after": after})
+    return GlobalSearchResult(T.numpy(), levels)
