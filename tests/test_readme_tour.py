@@ -2,10 +2,12 @@
 ``<!-- tour:end -->``) in order, in an empty temporary folder, each with exit code 0.
 
 Kept small through the environment: ``--frames N`` becomes ``--frames min(N, F)`` with
-``F = SUPPORTNET_TOUR_FRAMES`` (default 60: the urban drive must reach its first corner for
-Stage 1), ``--runs N`` becomes ``--runs min(N, R)`` with ``R = SUPPORTNET_TOUR_RUNS`` (default 2).
-``.venv/bin/`` becomes the folder of this interpreter (the test's venv). ``make`` lines are not run
-(they build the checkout's own venv); the tour has none today. Slow: several minutes.
+``F = SUPPORTNET_TOUR_FRAMES`` (default 20), ``--runs N`` becomes ``--runs min(N, R)`` with
+``R = SUPPORTNET_TOUR_RUNS`` (default 1). One exception: the sequence the tour's ``init-calib``
+reads keeps at least ``STAGE1_FRAMES`` frames, because the synthetic urban drive reaches its first
+corner only after 30 m and Stage 1 rightly refuses motion without rotation. ``.venv/bin/`` becomes
+the folder of this interpreter (the test's venv). ``make`` lines are not run (they build the
+checkout's own venv); the tour has none today. Slow: many minutes on two cores.
 
     .venv/bin/python -m pytest -m slow tests/test_readme_tour.py -s   # -s prints each step's time
 """
@@ -24,8 +26,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 START, END = "<!-- tour:start -->", "<!-- tour:end -->"
-FRAMES = int(os.environ.get("SUPPORTNET_TOUR_FRAMES", "60"))
-RUNS = int(os.environ.get("SUPPORTNET_TOUR_RUNS", "2"))
+FRAMES = int(os.environ.get("SUPPORTNET_TOUR_FRAMES", "20"))
+RUNS = int(os.environ.get("SUPPORTNET_TOUR_RUNS", "1"))
+STAGE1_FRAMES = 60
+"""Frames of the urban drive (8 m/s, 10 Hz) up to and around its first corner."""
 
 
 def tour_commands(readme: str) -> list[str]:
@@ -51,8 +55,34 @@ def tour_commands(readme: str) -> list[str]:
     return commands
 
 
-def scaled(command: str, bin_dir: Path, frames: int = FRAMES, runs: int = RUNS) -> str:
-    """``command`` as the test runs it: this venv's ``bin``, fewer frames and runs."""
+def _option(command: str, name: str) -> str | None:
+    found = re.search(rf"{name} (\S+)", command)
+    return found[1] if found else None
+
+
+def stage1_sequence(commands: list[str]) -> tuple[str | None, str | None]:
+    """``(--data, --sequence)`` of the tour's ``init-calib``, if it has one."""
+    for command in commands:
+        if " init-calib " in command:
+            return _option(command, "--data"), _option(command, "--sequence")
+    return None, None
+
+
+def scaled(
+    command: str,
+    bin_dir: Path,
+    frames: int = FRAMES,
+    runs: int = RUNS,
+    stage1: tuple[str | None, str | None] = (None, None),
+) -> str:
+    """``command`` as the test runs it: this venv's ``bin``, fewer frames and runs (``synth`` of
+    the ``stage1`` dataset and sequence: at least ``STAGE1_FRAMES``)."""
+    if (
+        " synth " in command
+        and stage1[0]
+        and (_option(command, "--out"), _option(command, "--sequence")) == stage1
+    ):
+        frames = max(frames, STAGE1_FRAMES)
     command = command.replace(".venv/bin/", f"{bin_dir}/")
     command = re.sub(r"--frames (\d+)", lambda m: f"--frames {min(int(m[1]), frames)}", command)
     return re.sub(r"--runs (\d+)", lambda m: f"--runs {min(int(m[1]), runs)}", command)
@@ -74,6 +104,17 @@ def test_tour_parsing_keeps_continued_and_quoted_lines_together():
     assert commands[1].endswith("--runs 10") and commands[2].endswith('b]"')
     assert scaled(commands[0], Path("/v/bin"), 7).startswith("/v/bin/supportnet synth --frames 7 ")
     assert scaled(commands[1], Path("/v/bin"), runs=3).endswith("--runs 3")
+    keep = scaled(commands[0], Path("/v/bin"), 7, stage1=("d", None))
+    assert f"--frames {STAGE1_FRAMES} " in keep
+
+
+def test_the_tour_runs_stage1_on_a_sequence_it_synthesises():
+    commands = tour_commands((ROOT / "README.md").read_text())
+    data, sequence = stage1_sequence(commands)
+    assert data and sequence
+    assert any(
+        f"--frames {STAGE1_FRAMES} " in scaled(c, Path("/b"), 5, stage1=(data, sequence)) for c in commands
+    )
 
 
 @pytest.mark.slow
@@ -83,23 +124,23 @@ def test_readme_tour_runs_in_order_in_an_empty_folder(tmp_path: Path) -> None:
         pytest.skip(f"no supportnet script beside {sys.executable}: install the project in this venv")
     commands = tour_commands((ROOT / "README.md").read_text())
     assert len(commands) >= 10, "the tour lost its commands"
+    stage1 = stage1_sequence(commands)
     env = {k: v for k, v in os.environ.items() if k != "COLUMNS"}
     timings = []
     for command in commands:
         if command.startswith("make "):
             timings.append((0.0, f"(not run) {command}"))
             continue
-        run = scaled(command, bin_dir)
+        run = scaled(command, bin_dir, stage1=stage1)
         start = time.perf_counter()
         result = subprocess.run(
             ["bash", "-c", run], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1200
         )
         timings.append((time.perf_counter() - start, command.splitlines()[0]))
+        print(f"  {timings[-1][0]:6.1f} s  exit {result.returncode}  {run.splitlines()[0]}", flush=True)
         assert result.returncode == 0, (
             f"tour step failed (exit {result.returncode}): {run}\n"
             f"--- stdout\n{result.stdout[-3000:]}\n--- stderr\n{result.stderr[-3000:]}"
         )
     total = sum(t for t, _ in timings)
-    print(f"\nREADME tour: {len(commands)} commands in {total:.0f} s (frames <= {FRAMES}, runs <= {RUNS})")
-    for seconds, first_line in timings:
-        print(f"  {seconds:6.1f} s  {first_line}")
+    print(f"README tour: {len(commands)} commands in {total:.0f} s (frames <= {FRAMES}, runs <= {RUNS})")

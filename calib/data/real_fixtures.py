@@ -148,9 +148,12 @@ def kitti_object_from_cvml(realdata: Path, out: Path) -> Path:
 def custom_from_nuscenes(realdata: Path, camera: str, out: Path) -> Path:
     """Write one camera of the mmdet3d nuScenes sample as a custom folder: its 1600x900 JPEG, the
     LIDAR_TOP scan (``x, y, z, intensity`` of the five stored columns, put in scan-line order by
-    the fifth, the ring) and ``calibration.yaml`` with the pickle's ``cam2img`` as ``K`` and its
-    ``lidar2cam`` as ``T_cam_lidar`` (mmdet3d's ``lidar2cam`` maps LiDAR points into the camera,
-    as ``T_cam_lidar`` does). Returns the folder."""
+    the fifth, the ring) and ``calibration.yaml`` with the pickle's ``cam2img`` as ``K``.
+
+    ``T_cam_lidar`` is the pickle's ``lidar2cam``, as the nuScenes devkit projects: the rig's
+    static calibration ``cam2ego⁻¹ · lidar2ego`` with the ego motion between the sweep's stamp and
+    the camera's folded in (0.5 to 43 ms, up to 40 cm here), the sweep being motion-compensated
+    to its stamp. Returns the folder."""
     src = Path(realdata) / NUSCENES
     if camera not in NUSCENES_CAMERAS:
         raise ValueError(f"unknown nuScenes camera {camera!r}; one of {', '.join(NUSCENES_CAMERAS)}")

@@ -32,7 +32,7 @@ from calib.results import SCHEMA_VERSION, CalibrationResult
 from calib.support.map_files import check_maps_fingerprint
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
-from supportnet.report.pictures import colourise, draw_projection
+from supportnet.report.pictures import draw_projection, map_picture
 from supportnet.runtime.matcher_factory import build_matcher
 from supportnet.runtime.support_sources import offline_maps_folders, parse_supports
 
@@ -241,7 +241,8 @@ def run_calibrate(
             )
             shown = support(frames[0])
             if shown is not None:
-                write_image(tmp / f"support_{_slug(support.name)}.png", colourise(shown))
+                picture = map_picture(shown, f"support ({support.name})")
+                write_image(tmp / f"support_{_slug(support.name)}.png", picture)
     console.print(_markdown(output), markup=False, highlight=False)
     return output
 

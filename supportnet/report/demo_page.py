@@ -371,44 +371,63 @@ def _stage4_comments(world: WorldRun) -> list[str]:
 
 
 def _translation_floor(world: WorldRun) -> str:
-    """When every support leaves much of the initial translation error: say so, and where it is."""
-    results = world.stage4["results"]
-    initial = [
-        r["initial_error"]["translation_cm"]
-        for x in results.values()
-        for r in x["runs"]
-        if r.get("initial_error")
-    ]
-    finals = {name: x["summary"]["translation_cm"]["mean"] for name, x in results.items() if x.get("summary")}
-    if not initial or not finals or min(finals.values()) < 0.5 * float(np.mean(initial)):
+    """When Stage 4 ends worse than it started, or leaves most of the initial translation error
+    whatever the support: say so, where the error lies and what the refinement's own uncertainty
+    says about it."""
+    results = {n: x for n, x in world.stage4["results"].items() if x.get("summary")}
+    runs = [r for x in results.values() for r in x["runs"] if r.get("initial_error") and r.get("error")]
+    if not results or not runs:
         return ""
-    start = float(np.mean(initial))
-    rot0 = np.mean([r["initial_error"]["rotation_deg"] for x in results.values() for r in x["runs"]])
-    rot1 = np.mean([x["summary"]["rotation_deg"]["mean"] for x in results.values() if x.get("summary")])
-    text = (
-        f"On {world.world}, Stage 4 removes only {1 - max(finals.values()) / start:.0%} to "
-        f"{1 - min(finals.values()) / start:.0%} of the initial translation error (from {start:.1f} cm to "
-        f"{min(finals.values()):.1f}–{max(finals.values()):.1f} cm, whatever the support), while the "
-        f"rotation error falls from {rot0:.2f}° to {rot1:.2f}°"
+    start = float(np.mean([r["initial_error"]["translation_cm"] for r in runs]))
+    rot0 = float(np.mean([r["initial_error"]["rotation_deg"] for r in runs]))
+    finals = {n: x["summary"]["translation_cm"]["mean"] for n, x in results.items()}
+    rots = [x["summary"]["rotation_deg"]["mean"] for x in results.values()]
+    lo, hi = min(finals.values()), max(finals.values())
+    span = f"{lo:.1f} cm" if round(lo, 1) == round(hi, 1) else f"{lo:.1f}–{hi:.1f} cm"
+    rot_span = (
+        f"{min(rots):.2f}°"
+        if round(min(rots), 2) == round(max(rots), 2)
+        else f"{min(rots):.2f}–{max(rots):.2f}°"
     )
-    try:
-        axes = np.mean(
-            [np.abs(r["error"]["translation_xyz_cm"]) for x in results.values() for r in x["runs"]], axis=0
+    worse = [_support_label(n) for n, v in finals.items() if v > start]
+    if worse:
+        who = "every support" if len(worse) == len(finals) else ", ".join(worse)
+        text = (
+            f"**On {world.world}, Stage 4 made the translation worse** with {who}: the mean error went "
+            f"from {start:.1f} cm to {span} (rotation from {rot0:.2f}° to {rot_span})"
         )
+    elif lo >= 0.5 * start:
+        text = (
+            f"On {world.world}, Stage 4 removes only {1 - hi / start:.0%} to {1 - lo / start:.0%} of the "
+            f"initial translation error (from {start:.1f} cm to {span}, whatever the support), while the "
+            f"rotation error goes from {rot0:.2f}° to {rot_span}"
+        )
+    else:
+        return ""
+    try:
+        axes = np.mean([np.abs(r["error"]["translation_xyz_cm"]) for r in runs], axis=0)
         k = int(np.argmax(axes))
         text += (
-            f". What remains lies mostly along camera {('x (right)', 'y (down)', 'z (forward)')[k]}, "
-            f"{axes[k]:.1f} cm of it on average"
+            f". The error lies mostly along camera {('x (right)', 'y (down)', 'z (forward)')[k]}, "
+            f"{axes[k]:.1f} cm of it on average over the runs"
         )
-        stds = [r["std_cm"] for x in results.values() for r in x["runs"] if r.get("std_cm") is not None]
-        if stds:
+        stds = [r["std_cm"] for r in runs if r.get("std_cm") is not None]
+        if stds and max(stds) < 0.5 * lo:
             text += (
-                f"; the refinement's own translation uncertainty is at most {max(stds):.1f} cm, so the "
-                "residual is a bias, not noise: likely the matcher's residuals, which are correlated "
-                "across points, pull translation (weakly observed by far points) off the reference"
-                if max(stds) < 0.5 * min(finals.values())
-                else f"; the refinement's own translation uncertainty is up to {max(stds):.1f} cm: "
-                "translation is weakly observed on this sequence"
+                f"; the refinement's own translation uncertainty is at most {max(stds):.1f} cm, so this is "
+                "a bias, not noise: "
+                + (
+                    "likely a false minimum, the projection shifted onto repeated structure (rows of "
+                    "posts, trunks or windows) that matches the image edges nearly as well"
+                    if worse
+                    else "likely the matcher's residuals, correlated across points, pull the translation "
+                    "(weakly observed by far points) off the reference"
+                )
+            )
+        elif stds:
+            text += (
+                f"; the refinement's own translation uncertainty is up to {max(stds):.1f} cm: translation "
+                "is weakly observed on this sequence"
             )
     except (KeyError, TypeError, ValueError):
         pass
@@ -423,15 +442,15 @@ def _likely_reason(world: WorldRun, name: str, worse_t: bool, worse_r: bool) -> 
     results = world.stage4["results"]
     r, base = results[name], results["uniform"]
     key = "translation_cm" if worse_t else "rotation_deg"
-    unit = "cm" if worse_t else "°"
+    unit = " cm" if worse_t else "°"
     gap = r["summary"][key]["mean"] - base["summary"][key]["mean"]
     spread = max(r["summary"][key]["std"], base["summary"][key]["std"])
     n = len(r["runs"])
     reasons = []
     if gap <= spread:
         reasons.append(
-            f"The gap ({gap:.2f} {unit}) is within the run-to-run spread (standard deviation up to "
-            f"{spread:.2f} {unit} over {n} runs), so it is not a significant loss; more runs "
+            f"The gap ({gap:.2f}{unit}) is within the run-to-run spread (standard deviation up to "
+            f"{spread:.2f}{unit} over {n} runs), so it is not a significant loss; more runs "
             f"(`--runs`) would tell"
         )
     axis_key = "translation_xyz_cm" if worse_t else "rotation_xyz_deg"
@@ -440,14 +459,18 @@ def _likely_reason(world: WorldRun, name: str, worse_t: bool, worse_r: bool) -> 
         extra = mine - theirs
         axis = int(np.argmax(extra))
         if extra[axis] > 0:
-            meaning = ("x, right", "y, down", "z, forward: depth")[axis] if worse_t else "xyz"[axis]
+            where = (
+                f"along camera {('x, right', 'y, down', 'z, forward: depth')[axis]}"
+                if worse_t
+                else f"about camera {'xyz'[axis]}"
+            )
             reasons.append(
-                f"most of the extra error is along camera {meaning} ({mine[axis]:.2f} {unit} against "
-                f"{theirs[axis]:.2f} {unit})"
+                f"most of the extra error is {where} ({mine[axis]:.2f}{unit} against "
+                f"{theirs[axis]:.2f}{unit})"
             )
     except (KeyError, ValueError, TypeError):
         pass
-    focus = _support_focus(world) if name.startswith("offline") else ""
+    focus = _support_focus(world, worse_t) if name.startswith("offline") else ""
     if name.startswith("onnx") and world.map_agreement is not None and world.map_agreement < 0.5:
         focus = f"the predicted map agrees with the offline map only at Pearson r = {world.map_agreement:.2f}"
     if focus:
@@ -468,7 +491,7 @@ def _likely_reason(world: WorldRun, name: str, worse_t: bool, worse_r: bool) -> 
     return text + ("; " + "; ".join(rest) if rest else "") + "."
 
 
-def _support_focus(world: WorldRun) -> str:
+def _support_focus(world: WorldRun, translation: bool = True) -> str:
     """Where the offline map puts its weight, by class, and how far those points are."""
     stats = [s for s in world.classes.get("classes", {}).get("all", []) if s.get("mean_support") is not None]
     stats = [s for s in stats if s["points"] >= world.classes.get("min_points_ranked", 50)]
@@ -483,7 +506,7 @@ def _support_focus(world: WorldRun) -> str:
         f"the offline map puts {share[top]:.0%} of its weight on {s['name']} (median depth "
         f"{s['median_depth_m']:.1f} m against {depth_all:.1f} m for all points)"
     )
-    if s["median_depth_m"] > depth_all:
+    if translation and s["median_depth_m"] > depth_all:
         text += (
             ", and far points constrain translation weakly (a translation t moves a point at depth d "
             "by only f·t/d pixels)"

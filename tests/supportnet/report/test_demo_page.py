@@ -312,7 +312,23 @@ def test_a_translation_floor_and_a_large_stage1_rotation_are_commented():
     assert (
         "Stage 4 removes only 34% to 36% of the initial translation error (from 10.0 cm to 6.4–6.6 cm" in md
     )
-    assert "along camera z (forward)" in md and "at most 0.1 cm, so the residual is a bias" in md
+    assert "along camera z (forward)" in md and "at most 0.1 cm, so this is a bias" in md
     assert "A 6.9° rotation error is large" in md and "4.9× the largest standard deviation" in md
     assert "exactly how far the reference lever arm is from that prior (30.0 cm)" in md
     assert "Pearson r = 0.13" in md and "That is low" in md and "still beat uniform sampling" in md
+
+
+def test_stage4_ending_worse_than_it_started_is_said_so():
+    classes, _ = _classes()
+    stage4 = {
+        "results": {"uniform": _runs([98.0, 104.0], [5.0, 0.5]), "onnx": _runs([20.0, 88.0], [6.0, 0.8])}
+    }
+    for run in (r for x in stage4["results"].values() for r in x["runs"]):
+        run["std_cm"] = 0.3
+    world = WorldRun("vineyard", "vineyard", "09", 9, 4, {"refused": "no rotation: none"}, stage4, classes)
+    md = to_markdown(build_demo_page([world], [], runs=2, seconds=1.0))
+    assert (
+        "**On vineyard, Stage 4 made the translation worse** with every support: the mean error went "
+        "from 10.0 cm to 54.0–101.0 cm (rotation from 2.00° to 2.75–3.40°)" in md
+    )
+    assert "likely a false minimum" in md and "removes only" not in md
