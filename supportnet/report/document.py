@@ -77,19 +77,8 @@ class Section:
 
 
 @dataclass
-class Document:
-    title: str
-    blocks: list[Block] = field(default_factory=list)
-    sections: list[Section] = field(default_factory=list)
-
-    def add(self, *blocks: Block) -> Document:
-        self.blocks.extend(blocks)
-        return self
-
-    def section(self, title: str) -> Section:
-        child = Section(title)
-        self.sections.append(child)
-        return child
+class Document(Section):
+    """The whole page: a top-level section whose title is the page's."""
 
     def walk(self) -> list[tuple[int, Section]]:
         """Every section with its depth (1 = a top-level section), in reading order."""
