@@ -47,7 +47,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterator
 from collections.abc import Sequence as FrameList
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -55,7 +57,7 @@ import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
 
 from calib.data.extrinsic_file import rigid_problem
 from calib.data.types import Frame
@@ -93,25 +95,31 @@ class CheckConfig(BaseModel):
     sigmas_deg: tuple[PositiveFloat, ...] = Field(
         (0.5, 0.25, 0.12), min_length=1, description="blur scales of the search, coarse to fine"
     )
+    translation_sigmas_deg: tuple[PositiveFloat, ...] = Field(
+        (0.25, 0.12),
+        min_length=1,
+        description="blur scales of the translation's search (fine: a translation moves far points little)",
+    )
     eval_sigma_deg: PositiveFloat = Field(0.25, description="blur scale of the gain and the probes")
     depth_m: float = Field(10.0, gt=0, description="typical depth: translation step = rotation step x this")
     max_rotation_deg: float = Field(3.0, gt=0, description="the search stays within this of T")
-    max_translation_m: float = Field(0.3, gt=0, description="the search stays within this of T")
-    blocks: tuple[int, int] = Field((8, 4), description="image cells (across, down) per frame")
-    z_bad: float = Field(3.0, gt=0, description="held-out gain z at and above which T is bad")
-    z_good: float = Field(2.0, gt=0, description="held-out gain z below which T is good")
-    detect_z: float = Field(3.0, gt=0, description="score drop, in block standard errors, that is detected")
-    probe_deg: tuple[PositiveFloat, ...] = Field(
-        (0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0), description="rotation probe ladder"
+    max_translation_m: float = Field(0.2, gt=0, description="the search stays within this of T")
+    blocks: tuple[PositiveInt, PositiveInt] = Field(
+        (8, 4), description="image cells across and down, per frame"
     )
-    probe_cm: tuple[PositiveFloat, ...] = Field(
-        (1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 30.0, 50.0, 100.0),
-        description="translation probe ladder",
+    bootstrap: int = Field(30, ge=3, description="block resamples that give the correction's scatter")
+    std_floor_deg: float = Field(0.05, gt=0, description="added in quadrature to every rotation std")
+    std_floor_cm: float = Field(0.5, gt=0, description="added in quadrature to every translation std")
+    m_bad: float = Field(4.0, gt=0, description="significance at and above which T is bad")
+    m_good: float = Field(3.0, gt=0, description="significance below which T is good")
+    rotation_tolerance_deg: float = Field(
+        0.5, ge=0, description="a correction smaller than this (and the translation's) is good"
     )
+    translation_tolerance_cm: float = Field(10.0, ge=0, description="see rotation_tolerance_deg")
 
     def model_post_init(self, __context: object) -> None:
-        if self.z_good > self.z_bad:
-            raise ValueError(f"z_good ({self.z_good}) must not exceed z_bad ({self.z_bad})")
+        if self.m_good > self.m_bad:
+            raise ValueError(f"m_good ({self.m_good}) must not exceed m_bad ({self.m_bad})")
         if min(self.blocks) < 1:
             raise ValueError(f"blocks must be positive, got {self.blocks}")
 
@@ -152,7 +160,7 @@ def vertical_edges(
     """Samples of the image's *horizontal* edges.
 
     The scan is cut into azimuth columns ``column_deg`` wide; in each, returns closer than
-    ``same_ring_deg`` in elevation count as one ring (the first is kept), and consecutive rings
+    ``same_ring_deg`` in elevation count as one ring (the nearest is kept), and consecutive rings
     are vertical neighbours when less than ``max_gap_deg`` apart. A jump in range between them
     (more than ``max(min_jump_m, rel_jump · nearer)``) whose two sides each continue a surface
     (their outer neighbours within ``surface_tol``) is an occluding contour, sampled midway in
@@ -171,7 +179,11 @@ def vertical_edges(
     order = np.lexsort((elevation, column))
     c, e = column[order], elevation[order]
     first = np.concatenate([[True], (c[1:] != c[:-1]) | (e[1:] - e[:-1] >= same_ring_deg)])
-    ring = order[first]  # one return per ring and column, by elevation within each column
+    group = np.cumsum(first) - 1  # one group per ring and column, by elevation within a column
+    by_range = np.lexsort((rng[order], group))
+    # each group's nearest return: a column across an object's side keeps the object, ring after
+    # ring, instead of alternating between it and what lies behind
+    ring = order[by_range[np.concatenate([[True], group[by_range][1:] != group[by_range][:-1]])]]
     c, e = column[ring], elevation[ring]
     a, b = ring[:-1], ring[1:]  # b is above a
     gap = e[1:] - e[:-1]
@@ -202,13 +214,7 @@ def _in_view(points: np.ndarray, T: np.ndarray, K: np.ndarray, size: tuple[int, 
     uvw = q @ K.T
     u, v = uvw[:, 0] / np.maximum(z, 1e-3), uvw[:, 1] / np.maximum(z, 1e-3)
     H, W = size
-    return (
-        (z > 0.5)
-        & (u > -margin * W)
-        & (u < (1 + margin) * W)
-        & (v > -margin * H)
-        & (v < (1 + margin) * H)
-    )
+    return (z > 0.5) & (u > -margin * W) & (u < (1 + margin) * W) & (v > -margin * H) & (v < (1 + margin) * H)
 
 
 def _directional_edges(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -254,7 +260,9 @@ class ContourScore:
             xyz = np.asarray(frame.points[keep, :3], np.float64)
             h = horizontal_edges(xyz)
             v, sky, _ = vertical_edges(xyz)
-            self.counts.append({"vertical_edges": len(h), "horizontal_edges": len(v), "silhouettes": len(sky)})
+            self.counts.append(
+                {"vertical_edges": len(h), "horizontal_edges": len(v), "silhouettes": len(sky)}
+            )
             kinds = [h, np.concatenate([v, sky])]
             kinds = [
                 x[np.sort(rng.choice(len(x), config.max_samples, replace=False))]
@@ -296,9 +304,12 @@ class ContourScore:
 
     def _project(self, T: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``uv (C, 2, F, N, 2)`` and depth ``(C, 2, F, N)`` of the samples under ``T (C, 4, 4)``."""
-        q = torch.einsum("cij,kfnj->ckfni", T[:, :3, :3], self.points) + T[:, None, None, None, :3, 3]
-        z = q[..., 2]
-        uvw = q @ self.K.T
+        KR = self.K @ T[:, :3, :3]
+        Kt = T[:, :3, 3] @ self.K.T
+        flat = self.points.reshape(-1, 3)
+        uvw = torch.matmul(flat, KR.transpose(1, 2)) + Kt[:, None]  # (C, M, 3); w is the depth
+        uvw = uvw.reshape(len(T), *self.points.shape)
+        z = uvw[..., 2]
         return uvw[..., :2] / z.clamp_min(1e-3)[..., None], z
 
     def maps(self, sigma_px: float) -> list[torch.Tensor]:
@@ -332,7 +343,9 @@ class ContourScore:
         v = torch.stack(out, 1)
         return torch.where(z > 0.5, v, 0.0)
 
-    def score(self, T: torch.Tensor | np.ndarray, sigma_px: float, mask: torch.Tensor | None = None) -> torch.Tensor:
+    def score(
+        self, T: torch.Tensor | np.ndarray, sigma_px: float, mask: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """``(C,)`` the score (samples weighted by :attr:`weights`, renormalised over ``mask``)."""
         w = self.weights if mask is None else self.weights * mask
         return (self.values(T, sigma_px) * w).sum((1, 2, 3)) / w.sum().clamp_min(1e-12)
@@ -354,18 +367,6 @@ class ContourScore:
         return math.radians(sigma_deg) * self.focal
 
 
-def _gain_z(differences: torch.Tensor) -> tuple[float, float]:
-    """Sum of per-block differences ``(..., B)`` and its ``z`` (the sum over the standard error
-    of a sum of ``B`` exchangeable blocks, ``√(B/(B−1) · Σ (d − d̄)²)``)."""
-    d = differences
-    B = d.shape[-1]
-    total = d.sum(-1)
-    if B < 2:
-        return float(total), 0.0
-    se = torch.sqrt(B / (B - 1) * ((d - d.mean(-1, keepdim=True)) ** 2).sum(-1)).clamp_min(1e-12)
-    return total, total / se
-
-
 def _steps(rotation: float, translation: float) -> torch.Tensor:
     """``(12, 6)`` ± one step along each twist axis (translation first)."""
     steps = torch.zeros(12, 6, dtype=torch.float64)
@@ -383,14 +384,24 @@ def _offsets(T_start: torch.Tensor, T: torch.Tensor) -> tuple[torch.Tensor, torc
 
 
 def _climb(
-    score: ContourScore, T_start: torch.Tensor, config: CheckConfig, mask: torch.Tensor | None = None
+    score: ContourScore,
+    T_start: torch.Tensor,
+    config: CheckConfig,
+    mask: torch.Tensor | None = None,
+    part: Literal["rotation", "translation"] = "rotation",
+    T_origin: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """Pattern search from ``T_start`` coarse to fine over ``config.sigmas_deg``: take the best of
-    the 12 neighbouring moves while it raises the score, halve the steps when none does, stop at
-    a quarter of the level's first step; never leave the bounds around ``T_start``."""
+    """Pattern search from ``T_start`` coarse to fine over ``config.sigmas_deg`` (rotation) or
+    ``config.translation_sigmas_deg`` (translation), moving only the rotation or only the
+    translation (in the LiDAR frame, as the error ``E``): take the best of the
+    6 neighbouring moves while it raises the score, halve the steps when none does, stop at a
+    quarter of the level's first step; never leave the bounds around ``T_origin`` (default
+    ``T_start``). A translation step is the rotation step times ``depth_m``."""
     T = T_start
+    origin = T_start if T_origin is None else T_origin
     max_r, max_t = math.radians(config.max_rotation_deg), config.max_translation_m
-    for sigma_deg in config.sigmas_deg:
+    rows = slice(6, 12) if part == "rotation" else slice(0, 6)
+    for sigma_deg in config.sigmas_deg if part == "rotation" else config.translation_sigmas_deg:
         sigma = score.sigma_px(sigma_deg)
         rotation = math.radians(sigma_deg)
         translation = rotation * config.depth_m
@@ -399,10 +410,10 @@ def _climb(
         for _ in range(200):
             if rotation < smallest:
                 break
-            candidates = se3_exp(_steps(rotation, translation)) @ T
+            candidates = T @ se3_exp(_steps(rotation, translation)[rows])
             values = score.score(candidates, sigma, mask)
-            angle, shift = _offsets(T_start, candidates)
-            values = torch.where((angle > max_r) | (shift > max_t), -1.0, values)
+            angle, shift = _offsets(origin, candidates)
+            values = torch.where((angle > max_r + 1e-9) | (shift > max_t + 1e-9), -1.0, values)
             k = int(values.argmax())
             if float(values[k]) > best:
                 T, best = candidates[k], float(values[k])
@@ -411,82 +422,47 @@ def _climb(
     return T
 
 
-def _folds(score: ContourScore, config: CheckConfig) -> torch.Tensor:
-    """``(2, F, N)`` mask of checkerboard fold 0 of the image blocks (fold 1 is its complement)."""
-    b = score.block
-    cv = b % config.blocks[1]
-    cu = (b // config.blocks[1]) % config.blocks[0]
-    frame = b // (config.blocks[0] * config.blocks[1] * 2)
-    return ((cu + cv + frame) % 2 == 0).double()
+def _search(
+    score: ContourScore,
+    T: torch.Tensor,
+    config: CheckConfig,
+    mask: torch.Tensor | None = None,
+    start: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """``T*``: the rotation climbed first (it moves the image the most and is the best observed),
+    then the translation with the rotation held; from ``start`` (default ``T``), within the bounds
+    around ``T``."""
+    T_rotation = _climb(score, T if start is None else start, config, mask, "rotation", T_origin=T)
+    return _climb(score, T_rotation, config, mask, "translation", T_origin=T)
 
 
-def _held_out_gain(score: ContourScore, T: torch.Tensor, config: CheckConfig) -> tuple[float, float, list]:
-    """Cross-fitted gain of the search: climb on one fold, measure ``S(T*) − S(T)`` on the other,
-    both ways; returns the gain (relative to ``S(T)``), its ``z`` over the held-out blocks, and the
-    two fold-wise extrinsics."""
-    fold = _folds(score, config)
-    sigma = score.sigma_px(config.eval_sigma_deg)
-    diffs, found = [], []
-    for train in (fold, 1.0 - fold):
-        held = 1.0 - train
-        T_fold = _climb(score, T, config, train)
-        found.append(T_fold)
-        sums, _ = score.block_sums(torch.stack([T, T_fold]), sigma, held)
-        diffs.append(sums[1] - sums[0])
-    d = torch.cat(diffs)
-    base = float(score.score(T, sigma)[0])
-    total, z = _gain_z(d)
-    # each fold's sums are normalised by its own weight: the two halves are averaged
-    return float(total) / 2 / max(base, 1e-12), float(z), found
+def _bootstrap(
+    score: ContourScore, T: torch.Tensor, T_best: torch.Tensor, config: CheckConfig, rng: np.random.Generator
+) -> np.ndarray:
+    """``(B, 6)`` corrections (``rotation_xyz_deg``, ``translation_xyz_cm`` of ``T⁻¹ · T*_b``) found
+    by the search on ``B`` resamples of the image blocks (drawn with replacement).
+
+    Each search starts near ``T_best``, jittered by about one step of the finest scales (a start
+    far away would add the search's wandering between local optima; a start exactly at
+    ``T_best`` would hide a flat score, from which a pattern search never moves)."""
+    ids = torch.unique(score.block[score.weights > 0])
+    rotation = math.radians(config.eval_sigma_deg)
+    scale = torch.tensor([rotation * config.depth_m] * 3 + [rotation] * 3, dtype=torch.float64)
+    out = []
+    for _ in range(config.bootstrap):
+        draw = torch.as_tensor(rng.integers(0, len(ids), len(ids)))
+        counts = torch.zeros(int(score.block.max()) + 1, dtype=torch.float64)
+        counts.index_add_(0, ids[draw], torch.ones(len(draw), dtype=torch.float64))
+        start = T_best @ se3_exp(torch.as_tensor(rng.normal(size=6)) * scale)
+        out.append(_twist(T, _search(score, T, config, counts[score.block], start=start)))
+    return np.array(out)
 
 
-def _detectable(score: ContourScore, T_best: torch.Tensor, config: CheckConfig) -> dict:
-    """Smallest probe, per axis and sign, whose score drop from ``T_best`` reaches ``detect_z``
-    block standard errors; the worst direction of rotation and of translation."""
-    sigma = score.sigma_px(config.eval_sigma_deg)
-    ladders = (np.asarray(config.probe_cm) / 100.0, np.radians(config.probe_deg))
-    twists, keys = [], []
-    for axis in range(6):
-        ladder = ladders[axis >= 3]
-        for sign in (1.0, -1.0):
-            for size in ladder:
-                t = torch.zeros(6, dtype=torch.float64)
-                t[axis] = sign * size
-                twists.append(t)
-                keys.append((axis, sign, size))
-    probes = T_best @ se3_exp(torch.stack(twists))  # right: the probe's error against T_best is the twist
-    sums, _ = score.block_sums(torch.cat([T_best[None], probes]), sigma)
-    _, z = _gain_z(sums[:1] - sums[1:])
-    z = z.numpy()
-    per_axis: dict[str, float | None] = {}
-    names = ("x", "y", "z")
-    for axis in range(6):
-        worst = 0.0
-        for sign in (1.0, -1.0):
-            rows = [i for i, k in enumerate(keys) if k[0] == axis and k[1] == sign]
-            sizes = np.array([keys[i][2] for i in rows])
-            zs = z[rows]
-            hit = np.nonzero(zs >= config.detect_z)[0]
-            if len(hit) == 0:
-                worst = math.inf
-                continue
-            i = hit[0]
-            if i == 0:
-                found = sizes[0]
-            else:  # linear between the last probe below and the first at or above
-                z0, z1 = zs[i - 1], zs[i]
-                found = sizes[i - 1] + (config.detect_z - z0) / max(z1 - z0, 1e-9) * (sizes[i] - sizes[i - 1])
-            worst = max(worst, float(found))
-        unit = 100.0 if axis < 3 else math.degrees(1.0)
-        name = ("translation_" if axis < 3 else "rotation_") + names[axis % 3]
-        per_axis[name] = None if math.isinf(worst) else worst * unit
-    rotation = [per_axis[f"rotation_{n}"] for n in names]
-    translation = [per_axis[f"translation_{n}"] for n in names]
-    return {
-        "rotation_deg": None if None in rotation else max(rotation),
-        "translation_cm": None if None in translation else max(translation),
-        "per_axis": per_axis,
-    }
+def _twist(T: torch.Tensor, T_other: torch.Tensor) -> np.ndarray:
+    """``(6,)`` rotation (°) and translation (cm) components of ``T⁻¹ · T_other`` (the error
+    convention of :func:`calib.geometry.calibration_error`, LiDAR axes)."""
+    e = calibration_error(T_other.numpy(), T.numpy())
+    return np.array([*e.rotation_xyz_deg, *e.translation_xyz_cm])
 
 
 # -- result ----------------------------------------------------------------------------------------
@@ -518,6 +494,17 @@ class FrameCheck:
         }
 
 
+AXES = (
+    "rotation_x_deg",
+    "rotation_y_deg",
+    "rotation_z_deg",
+    "translation_x_cm",
+    "translation_y_cm",
+    "translation_z_cm",
+)
+"""The six components of a correction (LiDAR axes, as :func:`calib.geometry.calibration_error`)."""
+
+
 @dataclass(frozen=True)
 class CheckResult:
     """What :func:`check_extrinsic` found.
@@ -526,14 +513,16 @@ class CheckResult:
         verdict: ``good``, ``suspect`` or ``bad``.
         T_cam_lidar: ``(4, 4)`` the extrinsic checked.
         suggested_T_cam_lidar: ``(4, 4)`` ``T*``, the best extrinsic found near it.
-        correction: ``T*`` against ``T`` (``E = T⁻¹ · T*``, DESIGN.md's error convention).
         score, best_score: the score under ``T`` and ``T*`` over all frames.
-        gain: held-out ``(S(T*) − S(T)) / S(T)``; gain_z: its ``z`` over held-out blocks.
-        detectable: the smallest error this data shows (``rotation_deg``, ``translation_cm``, per
-            axis; ``None`` where even the largest probe is not seen).
-        size: the correction over the detectable error (the larger of rotation and translation).
+        significance: ``m`` of the correction's rotation and of its translation: their Mahalanobis
+            length under the bootstrap covariance.
+        covariance: ``(6, 6)`` of the correction (``AXES`` order: °, cm) from the block bootstrap.
+        detectable: the smallest error the check calls bad on this data: ``rotation_deg`` and
+            ``translation_cm`` (the worst axis) and ``per_axis``.
+        at_bound: the search stopped at its bound (the error may be larger than the correction).
         frames: per frame.
         reasons: why the verdict, in words.
+        reference_T_cam_lidar: the data's own extrinsic, when it has one (reported, never used).
     """
 
     verdict: Verdict
@@ -541,10 +530,10 @@ class CheckResult:
     suggested_T_cam_lidar: np.ndarray
     score: float
     best_score: float
-    gain: float
-    gain_z: float
+    significance: dict[str, float]
+    covariance: np.ndarray
     detectable: dict
-    size: float | None
+    at_bound: bool
     frames: list[FrameCheck]
     reasons: list[str]
     reference_T_cam_lidar: np.ndarray | None = None
@@ -553,11 +542,18 @@ class CheckResult:
 
     @property
     def correction(self):
+        """``T*`` against ``T``: ``E = T⁻¹ · T*`` (DESIGN.md's error convention)."""
         return calibration_error(self.suggested_T_cam_lidar, self.T_cam_lidar)
 
     @property
     def alignment(self) -> float:
+        """``S(T) / S(T*)`` over all frames."""
         return self.score / self.best_score if self.best_score > 0 else 0.0
+
+    @property
+    def exit_code(self) -> int:
+        """0 for ``good``; 1 for ``bad`` and ``suspect`` (not confirmed: look at it)."""
+        return 0 if self.verdict == "good" else 1
 
     def to_dict(self) -> dict:
         reference = None
@@ -569,20 +565,24 @@ class CheckResult:
                     self.suggested_T_cam_lidar, self.reference_T_cam_lidar
                 ).to_dict(),
             }
+        std = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
         return {
             "schema_version": CHECK_SCHEMA_VERSION,
             "verdict": self.verdict,
+            "exit_code": self.exit_code,
             "reasons": self.reasons,
             "T_cam_lidar": np.asarray(self.T_cam_lidar).tolist(),
             "score": self.score,
             "best_score": self.best_score,
             "alignment": self.alignment,
-            "held_out_gain": self.gain,
-            "held_out_gain_z": self.gain_z,
+            "significance": self.significance,
             "detectable_error": self.detectable,
-            "correction_size": self.size,
             "suggested_T_cam_lidar": np.asarray(self.suggested_T_cam_lidar).tolist(),
             "suggested_correction": self.correction.to_dict(),
+            "correction_std": dict(zip(AXES, std.tolist(), strict=True)),
+            "correction_covariance": np.asarray(self.covariance).tolist(),
+            "covariance_order": list(AXES),
+            "search_at_bound": self.at_bound,
             "frames": [f.to_dict() for f in self.frames],
             "reference": reference,
             "runtime_s": self.runtime_s,
@@ -590,15 +590,28 @@ class CheckResult:
         }
 
 
-def _size(correction, detectable: dict) -> float | None:
-    """The correction over the detectable error: the larger of rotation and translation (a
-    part the data cannot resolve at all counts 0)."""
-    parts = []
-    if detectable["rotation_deg"]:
-        parts.append(correction.rotation_deg / detectable["rotation_deg"])
-    if detectable["translation_cm"]:
-        parts.append(correction.translation_cm / detectable["translation_cm"])
-    return max(parts) if parts else None
+def _detectable(covariance: np.ndarray, config: CheckConfig) -> dict:
+    """Per axis, the smallest error along that axis alone that reaches ``m_bad`` (``m_bad /
+    √(Σ⁻¹)_kk``) and at least the tolerance; the worst rotation and translation axis."""
+    information = np.diag(np.linalg.inv(covariance))
+    per_axis = {}
+    for k, name in enumerate(AXES):
+        floor = config.rotation_tolerance_deg if k < 3 else config.translation_tolerance_cm
+        per_axis[name] = max(floor, config.m_bad / math.sqrt(max(information[k], 1e-12)))
+    values = list(per_axis.values())
+    return {"rotation_deg": max(values[:3]), "translation_cm": max(values[3:]), "per_axis": per_axis}
+
+
+@contextmanager
+def _one_thread() -> Iterator[None]:
+    """torch on one thread: the check evaluates many small batches, for which waking a thread
+    pool costs more than the work (20x on a busy 2-core machine)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def check_extrinsic(
@@ -611,6 +624,13 @@ def check_extrinsic(
         DataError: ``T_cam_lidar`` is not rigid, or the frames do not share one camera.
         NumericalError: the scans show too few contours in the image to check anything.
     """
+    with _one_thread():
+        return _check(frames, T_cam_lidar, config, seed)
+
+
+def _check(
+    frames: FrameList[Frame], T_cam_lidar: np.ndarray, config: CheckConfig | None, seed: int
+) -> CheckResult:
     start = time.perf_counter()
     config = config if config is not None else CheckConfig()
     T_np = np.asarray(T_cam_lidar, np.float64)
@@ -619,38 +639,61 @@ def check_extrinsic(
         raise DataError("extrinsic", problem)
     score = ContourScore(frames, T_np, config, seed)
     T = torch.as_tensor(T_np)
-    T_best = _climb(score, T, config)
-    gain, gain_z, _ = _held_out_gain(score, T, config)
-    detectable = _detectable(score, T_best, config)
+    T_best = _search(score, T, config)
+    delta = _twist(T, T_best)
+    draws = _bootstrap(score, T, T_best, config, np.random.default_rng(seed))
+    floor = np.array([config.std_floor_deg] * 3 + [config.std_floor_cm] * 3)
+    covariance = np.cov(draws.T) + np.diag(floor**2)
+    rot, trans = slice(0, 3), slice(3, 6)
+    significance = {
+        name: float(np.sqrt(delta[part] @ np.linalg.solve(covariance[part, part], delta[part])))
+        for name, part in (("rotation", rot), ("translation", trans))
+    }
+    detectable = _detectable(covariance, config)
+    correction = calibration_error(T_best.numpy(), T_np)
+    angle, shift = _offsets(T, T_best[None])
+    at_bound = bool(
+        angle[0] > 0.95 * math.radians(config.max_rotation_deg) or shift[0] > 0.95 * config.max_translation_m
+    )
+    beyond = {
+        "rotation": correction.rotation_deg >= config.rotation_tolerance_deg,
+        "translation": correction.translation_cm >= config.translation_tolerance_cm,
+    }
+    found = {
+        part: "bad"
+        if significance[part] >= config.m_bad
+        else "suspect"
+        if significance[part] >= config.m_good
+        else "good"
+        for part in significance
+    }
+    found = {part: v if beyond[part] else "good" for part, v in found.items()}
+    verdict: Verdict = (
+        "bad" if "bad" in found.values() else "suspect" if "suspect" in found.values() else "good"
+    )
+    reasons = []
+    for part in ("rotation", "translation"):
+        size = (
+            f"{correction.rotation_deg:.2f}°" if part == "rotation" else f"{correction.translation_cm:.1f} cm"
+        )
+        tolerance = (
+            f"{config.rotation_tolerance_deg:g}°"
+            if part == "rotation"
+            else f"{config.translation_tolerance_cm:g} cm"
+        )
+        if not beyond[part]:
+            reasons.append(f"{part}: the best fit nearby is {size} away, within the tolerance of {tolerance}")
+        else:
+            reasons.append(
+                f"{part}: the best fit nearby is {size} away, {significance[part]:.1f} times its bootstrap "
+                f"scatter ({found[part]}: bad from {config.m_bad:g}, suspect from {config.m_good:g})"
+            )
+    if at_bound:
+        reasons.append("the search reached its bound: the error may be larger than the suggested correction")
     sigma = score.sigma_px(config.eval_sigma_deg)
     both = torch.stack([T, T_best])
     totals = score.score(both, sigma)
     per_frame = score.per_frame(both, sigma)
-    correction = calibration_error(T_best.numpy(), T_np)
-    size = _size(correction, detectable)
-    reasons = []
-    if gain_z >= config.z_bad and size is not None and size >= 1.0:
-        verdict: Verdict = "bad"
-        reasons.append(
-            f"an extrinsic {correction} away aligns held-out contours better (gain z = {gain_z:.1f} "
-            f"≥ {config.z_bad:g}), {size:.1f}x the smallest error this data shows"
-        )
-    elif gain_z < config.z_good or size is None or size < 1.0:
-        verdict = "good"
-        if gain_z < config.z_good:
-            reasons.append(f"no nearby extrinsic aligns held-out contours better (gain z = {gain_z:.1f})")
-        else:
-            reasons.append(
-                f"the best nearby extrinsic is within what this data resolves ({correction} away)"
-            )
-    else:
-        verdict = "suspect"
-        reasons.append(
-            f"an extrinsic {correction} away aligns held-out contours somewhat better "
-            f"(gain z = {gain_z:.1f}, between {config.z_good:g} and {config.z_bad:g})"
-        )
-    if detectable["rotation_deg"] is None or detectable["translation_cm"] is None:
-        reasons.append("some directions are not observed in this data at all (see detectable_error)")
     checks = [
         FrameCheck(
             index=int(f.index),
@@ -667,10 +710,10 @@ def check_extrinsic(
         suggested_T_cam_lidar=T_best.numpy(),
         score=float(totals[0]),
         best_score=float(totals[1]),
-        gain=gain,
-        gain_z=gain_z,
+        significance=significance,
+        covariance=covariance,
         detectable=detectable,
-        size=size,
+        at_bound=at_bound,
         frames=checks,
         reasons=reasons,
         reference_T_cam_lidar=frames[0].calibration.T_cam_lidar,

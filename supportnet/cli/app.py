@@ -271,6 +271,35 @@ def calibrate(
 
 
 @app.command()
+def check(
+    data: Annotated[Path, typer.Option(help="Dataset (any supported layout).")],
+    extrinsic: Annotated[
+        Path, typer.Option(help="T_cam_lidar to check: a result.json or a text file of 12 or 16 numbers.")
+    ],
+    out: Annotated[Path, typer.Option(help="Folder to write.")],
+    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    frames: Annotated[
+        int | None,
+        typer.Option(
+            help="Frames used, spread over the sequence, 1 to 10000 (default: the config's).",
+            callback=in_range("--frames", 1, 10_000),
+        ),
+    ] = None,
+    config: Annotated[Path | None, typer.Option(help="Check config (YAML; default: built in).")] = None,
+    camera: Camera = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Is this extrinsic right? No ground truth needed: a verdict (good, suspect, bad), a score
+    per frame, the smallest error this data shows, a suggested correction and an overlay.
+    Exit code 0 good, 1 bad or suspect (check.json says which), 2 bad input."""
+    from supportnet.cli.cmd_check import load_check_config, run_check
+
+    cfg = load_check_config(config, frames=frames)
+    result = run_check(data, sequence, extrinsic, out, cfg, overwrite, camera=camera)
+    raise typer.Exit(result["exit_code"])
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option(help="Report folder.")] = Path("demo_out"),
     frames: Annotated[

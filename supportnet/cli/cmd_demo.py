@@ -165,6 +165,7 @@ def world_figures(root: Path, world: WorldRun) -> None:
     from supportnet.cli.cmd_analyze import MIN_POINTS
     from supportnet.runtime.support_sources import resolve_support
 
+    root = Path(root).resolve()  # absolute: the support figures are drawn inside chdir(folder)
     w, folder = world.world, root / world.folder
     stats = [ClassStats(**s) for s in world.classes["classes"]["all"] if s["points"] >= MIN_POINTS]
     world.figures["classes"] = class_chart_figure(

@@ -1,0 +1,142 @@
+"""``calib.verify``: the check of an extrinsic without ground truth. Known answers on a small
+synthetic world (the reference good, 2° off bad), shapes, strict JSON, refusals; on the real
+KITTI raw fixture, the reference good and every one of 8 draws of 1° / 5 cm bad."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from calib.data import Frame, open_dataset
+from calib.data.real_fixtures import AMZ_DRIVE, AMZ_DRIVE_MORE
+from calib.errors import DataError, NumericalError
+from calib.geometry import calibration_error, perturb
+from calib.synth.generate import Synthesizer
+from calib.synth.synth_config import load_synth_config
+from calib.verify import (
+    AXES,
+    CHECK_SCHEMA_VERSION,
+    CheckConfig,
+    ContourScore,
+    check_extrinsic,
+    horizontal_edges,
+    vertical_edges,
+)
+
+STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}}
+
+
+@pytest.fixture(scope="module")
+def urban() -> list[Frame]:
+    synth = Synthesizer(load_synth_config("urban", **STILL), 2, seed=5)
+    return [synth.render(i).frame for i in range(2)]
+
+
+def _strict(text: str) -> dict:
+    def refuse(constant: str) -> None:
+        raise ValueError(f"not strict JSON: {constant}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_reference_is_good_and_its_result_is_strict_json(urban):
+    T = urban[0].calibration.T_cam_lidar
+    result = check_extrinsic(urban, T)
+    assert result.verdict == "good" and result.exit_code == 0
+    assert result.correction.rotation_deg < 0.5
+    assert result.alignment > 0.95
+    assert result.covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(result.covariance) > 0)
+    stored = _strict(json.dumps(result.to_dict(), allow_nan=False))
+    assert stored["schema_version"] == CHECK_SCHEMA_VERSION and stored["verdict"] == "good"
+    assert stored["covariance_order"] == list(AXES)
+    assert set(stored["detectable_error"]) == {"rotation_deg", "translation_cm", "per_axis"}
+    assert set(stored["detectable_error"]["per_axis"]) == set(AXES)
+    assert len(stored["frames"]) == 2 and stored["frames"][0]["samples"]["vertical_edges"] > 50
+    assert stored["reference"]["error"]["rotation_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert np.asarray(stored["suggested_T_cam_lidar"]).shape == (4, 4)
+
+
+@pytest.mark.parametrize("draw", [1, 2, 3])
+def test_two_degrees_off_is_bad(urban, draw):
+    T_ref = urban[0].calibration.T_cam_lidar
+    T = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(draw))
+    result = check_extrinsic(urban, T)
+    assert result.verdict == "bad" and result.exit_code == 1
+    assert result.significance["rotation"] >= CheckConfig().m_bad
+    assert result.correction.rotation_deg > CheckConfig().rotation_tolerance_deg and result.alignment < 0.9
+
+
+@pytest.mark.parametrize("draw", [1, 2])
+def test_one_degree_off_is_bad_and_the_suggestion_comes_back(urban, draw):
+    T_ref = urban[0].calibration.T_cam_lidar
+    T = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(draw))
+    result = check_extrinsic(urban, T)
+    assert result.verdict == "bad"
+    assert calibration_error(result.suggested_T_cam_lidar, T_ref).rotation_deg < 0.4
+
+
+def test_contour_score_shapes(urban):
+    T = urban[0].calibration.T_cam_lidar
+    score = ContourScore(urban, T, CheckConfig())
+    sigma = score.sigma_px(0.25)
+    Ts = torch.as_tensor(np.stack([T, T, T]))
+    values = score.values(Ts, sigma)
+    assert values.shape == (3, 2, 2, score.points.shape[2])
+    assert score.per_frame(Ts, sigma).shape == (3, 2)
+    assert score.score(Ts, sigma).shape == (3,)
+    sums, ids = score.block_sums(Ts, sigma)
+    assert sums.shape == (3, len(ids))
+    # the block contributions add up to the score
+    assert torch.allclose(sums.sum(1), score.score(Ts, sigma))
+    assert float(score.weights.sum()) == pytest.approx(1.0)
+
+
+def test_contours_of_a_box_in_front_of_a_wall():
+    """A scan-line ordered scan of a wall 20 m ahead with a 2 m-wide box 10 m ahead: vertical
+    edges at the box's sides, horizontal ones at its top, midway between the returns."""
+    rings = np.radians(np.arange(-10.0, 6.01, 0.4))
+    azimuths = np.radians(np.arange(-20.0, 20.0, 0.2))
+    points = []
+    for elevation in rings:
+        for azimuth in azimuths:
+            direction = np.array(
+                [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)]
+            )
+            box = 10.0 / direction[0]
+            hit = box * direction
+            depth = box if abs(hit[1]) < 1.0 and hit[2] < 0.5 else 20.0 / direction[0]
+            points.append(depth * direction)
+    points = np.array(points)
+    sides = horizontal_edges(points)
+    assert len(sides) > 10
+    assert np.allclose(np.abs(sides[:, 1] / sides[:, 0] * 10.0), 1.0, atol=0.05)  # at |y| = 1 m on the box
+    tops, silhouettes, spacing = vertical_edges(points)
+    assert spacing == pytest.approx(0.4, abs=0.01) and len(tops) > 5 and len(silhouettes) == 0
+    assert np.allclose(tops[:, 2] / tops[:, 0] * 10.0, 0.5, atol=0.05)  # the top at z = 0.5 m
+
+
+def test_refusals(urban):
+    T = urban[0].calibration.T_cam_lidar.copy()
+    T[0, 0] = 2.0
+    with pytest.raises(DataError, match="extrinsic"):
+        check_extrinsic(urban, T)
+    with pytest.raises(ValueError, match="m_good"):
+        CheckConfig(m_good=5.0, m_bad=4.0)
+    empty = [Frame(urban[0].image, urban[0].points[:10], urban[0].calibration)]
+    with pytest.raises(NumericalError, match="too few contour samples"):
+        check_extrinsic(empty, urban[0].calibration.T_cam_lidar)
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("folder", [AMZ_DRIVE, AMZ_DRIVE_MORE])
+def test_real_kitti_raw_reference_good_and_one_degree_five_cm_bad(realdata, folder):
+    with open_dataset(realdata / folder, camera="0") as seq:
+        frames = list(seq)
+        T_ref = seq.calibration.T_cam_lidar
+    assert check_extrinsic(frames, T_ref).verdict == "good"
+    generator = torch.Generator().manual_seed(20)
+    verdicts = [check_extrinsic(frames, perturb(T_ref, 5.0, 1.0, generator)).verdict for _ in range(8)]
+    assert verdicts == ["bad"] * 8

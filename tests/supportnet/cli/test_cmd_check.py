@@ -1,0 +1,118 @@
+"""``supportnet check`` through the installed console script: exit code 0 for the reference of a
+small synthetic world, 1 (with every output written) for the same 2° off, 2 with one line for
+bad input; strict ``check.json``; refuses to overwrite; reads a ``result.json`` too."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from calib.data import open_dataset
+from calib.geometry import perturb
+from calib.synth.generate import Synthesizer, write_sequence
+from calib.synth.synth_config import load_synth_config
+
+SUPPORTNET = Path(sys.executable).parent / "supportnet"
+STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}}
+
+
+def run_cli(*args):
+    env = dict(os.environ, COLUMNS="200")
+    return subprocess.run(
+        [str(SUPPORTNET), "check", *map(str, args)], capture_output=True, text=True, env=env, timeout=300
+    )
+
+
+def strict_json(path: Path) -> dict:
+    def refuse(constant: str) -> None:
+        raise ValueError(f"not strict JSON: {constant}")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    root = tmp_path_factory.mktemp("urban")
+    write_sequence(Synthesizer(load_synth_config("urban", **STILL), 2, seed=5), root, "00")
+    with open_dataset(root, sequence="00") as seq:
+        T = seq.calibration.T_cam_lidar
+    files = tmp_path_factory.mktemp("extrinsics")
+    np.savetxt(files / "reference.txt", T)  # 16 numbers
+    off = perturb(T, 5.0, 2.0, torch.Generator().manual_seed(1))
+    np.savetxt(files / "off.txt", off[:3])  # 12 numbers
+    (files / "result.json").write_text(json.dumps({"T_cam_lidar": off.tolist()}))
+    (files / "short.txt").write_text("1 0 0 0 0 1 0")
+    return root, files
+
+
+def test_reference_exits_0_with_its_outputs(world, tmp_path):
+    data, files = world
+    result = run_cli(
+        "--data", data, "--sequence", "00", "--extrinsic", files / "reference.txt", "--out", tmp_path / "o"
+    )
+    assert result.returncode == 0, result.stderr
+    out = tmp_path / "o"
+    stored = strict_json(out / "check.json")
+    assert stored["verdict"] == "good" and stored["exit_code"] == 0 and stored["schema_version"] == 1
+    assert stored["frame_indices"] == [0, 1] and len(stored["frames"]) == 2
+    assert {"rotation_deg", "translation_cm"} <= set(stored["detectable_error"])
+    for name in ("check.md", "overlay.png", "config.yaml"):
+        assert (out / name).is_file(), name
+    assert "# supportnet check: good" in (out / "check.md").read_text()
+    assert "good:" in result.stderr
+
+
+def test_two_degrees_off_exits_1_after_writing_everything(world, tmp_path):
+    data, files = world
+    for name in ("off.txt", "result.json"):
+        out = tmp_path / name
+        result = run_cli("--data", data, "--sequence", "00", "--extrinsic", files / name, "--out", out)
+        assert result.returncode == 1, result.stderr
+        stored = strict_json(out / "check.json")
+        assert stored["verdict"] == "bad" and stored["exit_code"] == 1
+        assert stored["suggested_correction"]["rotation_deg"] > 1.0
+        assert stored["reference"]["suggested_error"]["rotation_deg"] < 0.7
+        assert (out / "overlay.png").is_file() and (out / "check.md").is_file()
+
+
+def test_bad_input_is_one_line_and_exit_2(world, tmp_path):
+    data, files = world
+    result = run_cli(
+        "--data", data, "--sequence", "00", "--extrinsic", files / "short.txt", "--out", tmp_path / "o"
+    )
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "short.txt" in lines[0] and "holds 7 numbers" in lines[0]
+    assert "Traceback" not in result.stderr and not (tmp_path / "o").exists()
+    missing = run_cli(
+        "--data", tmp_path / "nothing", "--extrinsic", files / "reference.txt", "--out", tmp_path / "o"
+    )
+    assert missing.returncode == 2 and len(missing.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+    frames = run_cli(
+        "--data", data, "--extrinsic", files / "reference.txt", "--out", tmp_path / "o", "--frames", "0"
+    )
+    assert frames.returncode == 2 and "--frames" in frames.stderr
+
+
+def test_refuses_to_overwrite_without_the_flag(world, tmp_path):
+    data, files = world
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "mine.txt").write_text("not supportnet's")
+    args = ("--data", data, "--sequence", "00", "--extrinsic", files / "reference.txt", "--out", out)
+    result = run_cli(*args)
+    assert result.returncode == 2 and (out / "mine.txt").is_file()
+    assert run_cli(*args, "--overwrite").returncode == 2  # not supportnet's: never replaced
+    (out / "mine.txt").unlink()
+    out.rmdir()
+    assert run_cli(*args).returncode == 0
+    assert run_cli(*args).returncode == 2  # exists now
+    assert run_cli(*args, "--overwrite").returncode == 0
