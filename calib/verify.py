@@ -1,46 +1,46 @@
 """Is an extrinsic right? A check without ground truth (``supportnet check``).
 
-The evidence is where the scan's occluding contours fall in the image. Three kinds of 3D samples
-are taken from each scan once, under the extrinsic ``T`` being checked (they are points of the
-scene, so any other extrinsic moves them as it moves the scan):
+The evidence is where the scan's occluding contours fall in the image. Samples are taken from
+each scan once, under the extrinsic ``T`` being checked (they are points of the scene, so any
+other extrinsic moves them as it moves the scan):
 
 - *vertical edges*: depth jumps between neighbouring returns of a scan line
   (:func:`calib.features.depth_discontinuities`), placed midway between the two returns at the
   nearer range; read against the horizontal image gradient ``|∂I/∂u|``;
 - *horizontal edges*: depth jumps between vertically neighbouring returns (the top or bottom of an
-  object, one return per ring in each narrow azimuth column), and silhouettes against no return
+  object; one return per ring in each narrow azimuth column) and silhouettes against no return
   (the sky), placed half a ring spacing above the last return; read against ``|∂I/∂v|``.
 
 A scan line is the stored order (KITTI's Velodyne scans; the real-fixture converters put others
 in that order). The score of an extrinsic, per frame, is the mean blurred, normalised directional
-edge strength under its samples (half each kind); a correct extrinsic puts contours on edges
-(Levinson & Thrun's edge alignment, with the directions kept apart so texture of the wrong
-orientation does not count).
+edge strength under its samples, half each kind (Levinson & Thrun's edge alignment, with the two
+directions kept apart so that texture of the wrong orientation does not count). Blur scales are
+view angles, so every camera is treated alike.
 
-The check then asks three questions of the data:
+The check asks two questions of the data:
 
-1. **Is there a better extrinsic near ``T``?** A bounded pattern search (rotation within
-   ``max_rotation_deg``, translation within ``max_translation_m``) climbs the score from ``T``,
-   coarse to fine over blur scales given as view angles (so every camera is treated alike), to
-   ``T*``, the suggested correction.
-2. **Is it better on data it was not fitted to?** The samples fall into image blocks (a grid of
-   cells, per frame) split in two checkerboard folds; the search runs on one fold and the gain
-   ``S(T*) − S(T)`` is measured on the other, both ways. The gain's ``z`` is its sum over blocks
-   divided by the standard error from the blocks' scatter (blocks, not points, because
-   neighbouring samples of one edge are not independent): climbing overfits, held-out blocks do
-   not, so at a correct ``T`` the held-out ``z`` stays near or below zero.
-3. **How small an error can this data show?** Around ``T*`` the score is probed along each of
-   the six axes (both signs) with a ladder of sizes; the smallest size whose score drop reaches
-   ``detect_z`` block standard errors is the detectable error in that direction, and the worst
-   direction of rotation (°) and of translation (cm) is reported. It comes from the data: the
-   score's sensitivity against its block-to-block scatter.
+1. **Is there a better extrinsic near ``T``?** A pattern search climbs the score from ``T``,
+   coarse to fine: the rotation first (``sigmas_deg``), then the translation with the rotation
+   held (``translation_sigmas_deg``: a translation moves far points little, so only fine scales
+   see it), within ``max_rotation_deg`` and ``max_translation_m`` of ``T``. It ends at ``T*``,
+   the suggested correction.
+2. **Is that correction more than the noise of this data?** The samples fall into image blocks
+   (a grid of cells per frame); the search is repeated on ``bootstrap`` resamples of the blocks
+   (drawn with replacement; blocks, not samples, because neighbouring samples of one edge are not
+   independent), each started near ``T*``. The scatter of the resampled optima is the
+   correction's covariance ``Σ`` (°, cm; floors added), and its ``significance`` is the
+   Mahalanobis length ``m = √(δᵀ Σ⁻¹ δ)`` of the rotation and of the translation separately.
 
-Verdict: ``bad`` when the held-out gain is significant (``z ≥ z_bad``) and the correction exceeds
-what the data can resolve (``size ≥ 1``, with ``size`` the correction's rotation and translation
-divided by the detectable error, the larger of the two); ``good`` when the held-out gain is
-not significant (``z < z_good``) or the correction is within what the data can resolve
-(``size < 1``); ``suspect`` in between. The thresholds were set on synthetic worlds (see
-``benchmarks/bench_check.py``) and validated on the real fixtures.
+Verdict, per part (rotation, translation), the worse of the two: ``bad`` when ``m ≥ m_bad`` and
+the correction reaches the tolerance (``rotation_tolerance_deg``, ``translation_tolerance_cm``);
+``suspect`` when ``m_good ≤ m < m_bad`` and it reaches the tolerance; ``good`` otherwise. The
+smallest error this data shows, per axis, is what an error along that axis alone needs to reach
+``m_bad`` (``m_bad / √(Σ⁻¹)_kk``), and at least the tolerance; the worst rotation and translation
+axes are reported. At a correct ``T`` the significance follows roughly a χ distribution with 3
+degrees of freedom (``m_good = 2``, ``m_bad = 3`` leave about 26 % and 3 % of correct extrinsics
+above them if the bootstrap were exact; it is conservative, and on the synthetic worlds and
+real fixtures references stay below 2). The thresholds were set on synthetic worlds at KITTI's
+pixel scale and checked on the real fixtures (``benchmarks/bench_check.py``).
 """
 
 from __future__ import annotations
@@ -66,6 +66,7 @@ from calib.features import depth_discontinuities
 from calib.geometry import calibration_error, se3_exp
 
 __all__ = [
+    "AXES",
     "CHECK_SCHEMA_VERSION",
     "CheckConfig",
     "CheckResult",
@@ -92,6 +93,9 @@ class CheckConfig(BaseModel):
     view_margin: float = Field(0.15, ge=0, description="contours are taken this far outside the image")
     max_samples: int = Field(4000, ge=10, description="samples of each kind kept per frame")
     min_samples: int = Field(20, ge=1, description="a kind with fewer samples in a frame is left out")
+    both_sides: bool = Field(
+        True, description="a contour's far side must continue a surface too (else only its near side)"
+    )
     sigmas_deg: tuple[PositiveFloat, ...] = Field(
         (0.5, 0.25, 0.12), min_length=1, description="blur scales of the search, coarse to fine"
     )
@@ -100,7 +104,7 @@ class CheckConfig(BaseModel):
         min_length=1,
         description="blur scales of the translation's search (fine: a translation moves far points little)",
     )
-    eval_sigma_deg: PositiveFloat = Field(0.25, description="blur scale of the gain and the probes")
+    eval_sigma_deg: PositiveFloat = Field(0.25, description="blur scale of the reported scores")
     depth_m: float = Field(10.0, gt=0, description="typical depth: translation step = rotation step x this")
     max_rotation_deg: float = Field(3.0, gt=0, description="the search stays within this of T")
     max_translation_m: float = Field(0.2, gt=0, description="the search stays within this of T")
@@ -108,10 +112,12 @@ class CheckConfig(BaseModel):
         (8, 4), description="image cells across and down, per frame"
     )
     bootstrap: int = Field(30, ge=3, description="block resamples that give the correction's scatter")
+    jitter_deg: float = Field(0.25, ge=0, description="std of the rotation of each resampled search's start")
+    jitter_cm: float = Field(4.4, ge=0, description="std of the translation of each resampled search's start")
     std_floor_deg: float = Field(0.05, gt=0, description="added in quadrature to every rotation std")
     std_floor_cm: float = Field(0.5, gt=0, description="added in quadrature to every translation std")
-    m_bad: float = Field(4.0, gt=0, description="significance at and above which T is bad")
-    m_good: float = Field(3.0, gt=0, description="significance below which T is good")
+    m_bad: float = Field(3.0, gt=0, description="significance at and above which T is bad")
+    m_good: float = Field(2.0, gt=0, description="significance below which T is good")
     rotation_tolerance_deg: float = Field(
         0.5, ge=0, description="a correction smaller than this (and the translation's) is good"
     )
@@ -138,11 +144,43 @@ def _points(azimuth: np.ndarray, elevation: np.ndarray, rng: np.ndarray) -> np.n
     return np.column_stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)]) * rng[:, None]
 
 
-def horizontal_edges(points_lidar: np.ndarray) -> np.ndarray:
-    """Samples of the image's *vertical* edges: each depth jump along a scan line (stored order),
-    midway in azimuth between its two returns, at the nearer range. ``(M, 3)`` LiDAR frame."""
+def horizontal_edges(
+    points_lidar: np.ndarray,
+    min_jump_m: float = 0.5,
+    rel_jump: float = 0.1,
+    max_azimuth_gap_deg: float = 1.0,
+    max_elevation_gap_deg: float = 0.3,
+    surface_tol: float = 0.05,
+    both_sides: bool = True,
+) -> np.ndarray:
+    """Samples of the image's *vertical* edges: each depth jump along a scan line (stored order;
+    :func:`calib.features.depth_discontinuities`' rule, whose two sides each continue a surface,
+    or with ``both_sides=False`` only the nearer side), midway in azimuth between its two returns,
+    at the nearer range. ``(M, 3)`` LiDAR frame."""
     xyz = np.asarray(points_lidar, np.float64)[:, :3]
-    nearer, farther = depth_discontinuities(xyz)
+    if len(xyz) < 3:
+        return np.zeros((0, 3))
+    if both_sides:
+        nearer, farther = depth_discontinuities(
+            xyz, None, min_jump_m, rel_jump, max_azimuth_gap_deg, max_elevation_gap_deg, surface_tol
+        )
+    else:
+        azimuth, elevation, rng = _spherical(xyz)
+        a, b = np.arange(len(xyz) - 1), np.arange(1, len(xyz))
+        d_az = np.abs((azimuth[b] - azimuth[a] + 180.0) % 360.0 - 180.0)
+        neighbours = (d_az < max_azimuth_gap_deg) & (
+            np.abs(elevation[b] - elevation[a]) < max_elevation_gap_deg
+        )
+        closer = np.minimum(rng[a], rng[b])
+        jump = neighbours & (np.abs(rng[a] - rng[b]) > np.maximum(min_jump_m, rel_jump * closer))
+        smooth = neighbours & (np.abs(rng[a] - rng[b]) <= surface_tol * closer)
+        k = np.nonzero(jump)[0]
+        a_nearer = rng[a[k]] < rng[b[k]]
+        before = np.concatenate([[False], smooth])[k]  # a[k] continues backwards
+        after = np.concatenate([smooth, [False]])[k + 1]  # b[k] continues forwards
+        keep = np.where(a_nearer, before, after)
+        nearer = np.where(a_nearer, a[k], b[k])[keep]
+        farther = np.where(a_nearer, b[k], a[k])[keep]
     azimuth, elevation, rng = _spherical(xyz)
     gap = (azimuth[farther] - azimuth[nearer] + 180.0) % 360.0 - 180.0
     return _points(azimuth[nearer] + 0.5 * gap, elevation[nearer], rng[nearer])
@@ -156,6 +194,7 @@ def vertical_edges(
     min_jump_m: float = 0.5,
     rel_jump: float = 0.1,
     surface_tol: float = 0.05,
+    both_sides: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Samples of the image's *horizontal* edges.
 
@@ -163,7 +202,8 @@ def vertical_edges(
     ``same_ring_deg`` in elevation count as one ring (the nearest is kept), and consecutive rings
     are vertical neighbours when less than ``max_gap_deg`` apart. A jump in range between them
     (more than ``max(min_jump_m, rel_jump · nearer)``) whose two sides each continue a surface
-    (their outer neighbours within ``surface_tol``) is an occluding contour, sampled midway in
+    (their outer neighbours within ``surface_tol``; ``both_sides=False``: the nearer side) is an
+    occluding contour, sampled midway in
     elevation at the nearer range. A column's topmost return that continues a surface below it,
     at least two ring spacings under the scan's top, has nothing above it: a silhouette against
     the sky (or glass), sampled half a ring spacing above it.
@@ -195,8 +235,9 @@ def vertical_edges(
     k = np.nonzero(jump)[0]
     below = np.concatenate([[False], smooth])[k]  # ring[k - 1] continues ring[k]
     above = np.concatenate([smooth, [False]])[k + 1]  # ring[k + 2] continues ring[k + 1]
-    k = k[below & above]
     a_nearer = rng[a[k]] < rng[b[k]]
+    keep = below & above if both_sides else np.where(a_nearer, below, above)
+    k, a_nearer = k[keep], a_nearer[keep]
     nearer = np.where(a_nearer, a[k], b[k])
     farther = np.where(a_nearer, b[k], a[k])
     contours = _points(azimuth[nearer], 0.5 * (elevation[nearer] + elevation[farther]), rng[nearer])
@@ -228,18 +269,16 @@ def _directional_edges(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return out[0], out[1]
 
 
-KINDS = ("vertical edges", "horizontal edges")
-"""What each kind of sample marks in the image (see the module docstring)."""
-
-
 class ContourScore:
     """Edge alignment of the contour samples of ``frames`` (one shared ``K``), taken under ``T``.
 
     Attributes:
         counts: per frame ``{kind: samples}`` (vertical edges, horizontal edges, silhouettes).
-        weights: per kind ``(F, N)`` float64: the sample's share of the score (0 for padding or a
-            kind left out), so that the score is a weighted sum.
-        block: per kind ``(F, N)`` int64: the sample's image block (unique over frames and kinds).
+        points: ``(2, F, N, 3)`` the samples of each kind (vertical edges; horizontal edges and
+            silhouettes) per frame, LiDAR frame, zero-padded.
+        weights: ``(2, F, N)`` float64: the sample's share of the score (0 for padding or a kind
+            left out), so that the score is a weighted sum (total 1).
+        block: ``(2, F, N)`` int64: the sample's image block (unique over frames and kinds).
     """
 
     def __init__(self, frames: FrameList[Frame], T: np.ndarray, config: CheckConfig, seed: int = 0) -> None:
@@ -258,8 +297,8 @@ class ContourScore:
         for frame in frames:
             keep = _in_view(frame.points, T, K, self.size, config.view_margin)
             xyz = np.asarray(frame.points[keep, :3], np.float64)
-            h = horizontal_edges(xyz)
-            v, sky, _ = vertical_edges(xyz)
+            h = horizontal_edges(xyz, both_sides=config.both_sides)
+            v, sky, _ = vertical_edges(xyz, both_sides=config.both_sides)
             self.counts.append(
                 {"vertical_edges": len(h), "horizontal_edges": len(v), "silhouettes": len(sky)}
             )
@@ -442,12 +481,13 @@ def _bootstrap(
     """``(B, 6)`` corrections (``rotation_xyz_deg``, ``translation_xyz_cm`` of ``T⁻¹ · T*_b``) found
     by the search on ``B`` resamples of the image blocks (drawn with replacement).
 
-    Each search starts near ``T_best``, jittered by about one step of the finest scales (a start
+    Each search starts near ``T_best``, jittered by ``jitter_deg`` and ``jitter_cm`` (a start
     far away would add the search's wandering between local optima; a start exactly at
     ``T_best`` would hide a flat score, from which a pattern search never moves)."""
     ids = torch.unique(score.block[score.weights > 0])
-    rotation = math.radians(config.eval_sigma_deg)
-    scale = torch.tensor([rotation * config.depth_m] * 3 + [rotation] * 3, dtype=torch.float64)
+    scale = torch.tensor(
+        [config.jitter_cm / 100.0] * 3 + [math.radians(config.jitter_deg)] * 3, dtype=torch.float64
+    )
     out = []
     for _ in range(config.bootstrap):
         draw = torch.as_tensor(rng.integers(0, len(ids), len(ids)))
