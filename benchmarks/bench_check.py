@@ -39,11 +39,21 @@ STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}, "came
 SYNTH_SEEDS = (101, 102, 103, 104)
 
 
+def roll_share(T: np.ndarray, T_ref: np.ndarray) -> float:
+    """How much of ``T``'s rotation error is about the camera's optical axis (roll), in [0, 1]:
+    the direction a single frame sees least."""
+    omega = np.asarray(calibration_error(T, T_ref).rotation_xyz_deg)
+    axis = np.asarray(T_ref)[2, :3]  # the optical axis in LiDAR coordinates
+    norm = float(np.linalg.norm(omega))
+    return abs(float(omega @ axis)) / norm if norm > 0 else 0.0
+
+
 def one_check(frames: list[Frame], T: np.ndarray, T_ref: np.ndarray, config: CheckConfig) -> dict:
     result = check_extrinsic(frames, T, config)
     c, d = result.correction, result.detectable
     return {
         "verdict": result.verdict,
+        "roll_share": roll_share(T, T_ref),
         "significance_rotation": result.significance["rotation"],
         "significance_translation": result.significance["translation"],
         "score": result.score,
@@ -133,7 +143,14 @@ def summary(rows: dict) -> dict:
         "1deg_5cm_bad_share": float(np.mean([r["1deg_5cm"]["bad"] for r in rows.values()])),
         "1deg_5cm_good_share": float(np.mean([r["1deg_5cm"]["good"] for r in rows.values()])),
         "0.5deg_2.5cm_bad_share": float(np.mean([r["0.5deg_2.5cm"]["bad"] for r in rows.values()])),
+        "1deg_5cm_roll_share_of_missed": _mean_roll(rows, lambda v: v != "bad"),
+        "1deg_5cm_roll_share_of_called_bad": _mean_roll(rows, lambda v: v == "bad"),
     }
+
+
+def _mean_roll(rows: dict, pick) -> float | None:
+    shares = [c["roll_share"] for r in rows.values() for c in r["1deg_5cm"]["checks"] if pick(c["verdict"])]
+    return float(np.mean(shares)) if shares else None
 
 
 def main() -> None:
