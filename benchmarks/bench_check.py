@@ -54,6 +54,7 @@ def one_check(frames: list[Frame], T: np.ndarray, T_ref: np.ndarray, config: Che
     return {
         "verdict": result.verdict,
         "roll_share": roll_share(T, T_ref),
+        "significance": result.significance["joint"],
         "significance_rotation": result.significance["rotation"],
         "significance_translation": result.significance["translation"],
         "score": result.score,
@@ -77,7 +78,7 @@ def dataset_row(name: str, frames: list[Frame], T_ref: np.ndarray, config: Check
             "bad": verdicts.count("bad") / draws,
             "suspect": verdicts.count("suspect") / draws,
             "good": verdicts.count("good") / draws,
-            "significance_rotation": [c["significance_rotation"] for c in checks],
+            "significance": [c["significance"] for c in checks],
             "checks": checks,
         }
     return row
@@ -115,7 +116,7 @@ def synthetic_rows(config: CheckConfig, draws: int) -> dict:
 
 
 HEADER = (
-    f"{'dataset':26s} {'fr':>2s} {'reference':>9s} {'m_rot':>5s} {'align':>5s} "
+    f"{'dataset':26s} {'fr':>2s} {'reference':>9s} {'m':>5s} {'align':>5s} "
     f"{'1°/5cm bad':>10s} {'susp':>5s} {'0.5°/2.5cm bad':>14s} {'susp':>5s} "
     f"{'detect °':>8s} {'cm':>5s} {'s':>4s}"
 )
@@ -126,7 +127,7 @@ def line(name: str, row: dict) -> str:
     big, small = row["1deg_5cm"], row["0.5deg_2.5cm"]
     seconds = np.mean([c["seconds"] for c in big["checks"]] + [ref["seconds"]])
     return (
-        f"{name:26s} {row['frames']:2d} {ref['verdict']:>9s} {ref['significance_rotation']:5.1f} "
+        f"{name:26s} {row['frames']:2d} {ref['verdict']:>9s} {ref['significance']:5.1f} "
         f"{ref['alignment']:5.2f} {big['bad']:10.0%} {big['suspect']:5.0%} {small['bad']:14.0%} "
         f"{small['suspect']:5.0%} {ref['detectable_deg']:8.2f} {ref['detectable_cm']:5.1f} {seconds:4.1f}"
     )

@@ -88,7 +88,8 @@ def _markdown(output: dict) -> str:
         f"| score (alignment of contours with image edges) | {output['score']:.4f} |",
         f"| best score nearby | {output['best_score']:.4f} (alignment {output['alignment']:.3f}) |",
         f"| suggested correction | {c['rotation_deg']:.3f}° / {c['translation_cm']:.2f} cm |",
-        f"| significance (rotation / translation) | {s['rotation']:.1f} / {s['translation']:.1f} |",
+        f"| significance (joint; rotation / translation alone) | {s['joint']:.1f}; "
+        f"{s['rotation']:.1f} / {s['translation']:.1f} |",
         f"| smallest error this data shows | {_fmt(d['rotation_deg'], '°', 2)} / "
         f"{_fmt(d['translation_cm'], 'cm', 1)} |",
         "",
@@ -154,7 +155,7 @@ def run_check(
     c, d = result.correction, result.detectable
     console.print(
         f"{result.verdict}: best fit nearby {c.rotation_deg:.2f}° / {c.translation_cm:.1f} cm away "
-        f"(significance {result.significance['rotation']:.1f} / {result.significance['translation']:.1f}); "
+        f"(significance {result.significance['joint']:.1f}); "
         f"smallest error this data shows {_fmt(d['rotation_deg'], '°', 2)} / "
         f"{_fmt(d['translation_cm'], 'cm', 1)}; {len(frames)} frame(s) in {result.runtime_s:.1f} s",
         markup=False,

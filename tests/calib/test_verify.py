@@ -65,7 +65,7 @@ def test_two_degrees_off_is_bad(urban, draw):
     T = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(draw))
     result = check_extrinsic(urban, T)
     assert result.verdict == "bad" and result.exit_code == 1
-    assert result.significance["rotation"] >= CheckConfig().m_bad
+    assert result.significance["joint"] >= CheckConfig().m_bad
     assert result.correction.rotation_deg > CheckConfig().rotation_tolerance_deg and result.alignment < 0.9
 
 
@@ -124,7 +124,7 @@ def test_refusals(urban):
     with pytest.raises(DataError, match="extrinsic"):
         check_extrinsic(urban, T)
     with pytest.raises(ValueError, match="m_good"):
-        CheckConfig(m_good=5.0, m_bad=4.0)
+        CheckConfig(m_good=6.0, m_bad=5.0)
     empty = [Frame(urban[0].image, urban[0].points[:10], urban[0].calibration)]
     with pytest.raises(NumericalError, match="too few contour samples"):
         check_extrinsic(empty, urban[0].calibration.T_cam_lidar)
