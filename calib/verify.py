@@ -40,8 +40,8 @@ Verdict: ``bad`` when ``m ≥ m_bad`` and the correction reaches a tolerance
 m_bad`` and it reaches one; ``good`` otherwise. At a correct ``T`` the significance follows roughly
 a χ distribution with 6 degrees of freedom: ``m_good = 3.5`` and ``m_bad = 4.5`` leave about 6 %
 and 0.25 % of correct extrinsics above them if the bootstrap were exact (the references of the
-multi-frame KITTI raw fixtures reach 2.1 and 4.0, their 1° / 5 cm errors 6.0–18.4). The smallest error this data
-shows, per axis, is what an error along that axis alone needs to reach ``m_bad`` (``m_bad /
+multi-frame KITTI raw fixtures reach 2.1 and 4.0, their 1° / 5 cm errors 6.0–18.4). The smallest
+error this data shows, per axis, is what an error along that axis alone needs to reach ``m_bad`` (``m_bad /
 √(Σ⁻¹)_kk``), and at least the tolerance; the worst rotation and translation axes are reported.
 The thresholds were set on synthetic worlds at KITTI's pixel scale and checked on the real
 fixtures (``benchmarks/bench_check.py``).
