@@ -25,6 +25,7 @@ from calib.init.motion_init import Stage1Config, initial_calibration, load_stage
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
 from calib.observability import weak_directions
+from calib.refine.contour_refine import contour_refine
 from calib.refine.global_search import global_search
 from calib.refine.passes import CalibrateConfig, load_calibrate_config, refine_passes
 from calib.refine.tracking import OnlineState, departure, extrinsic_of
@@ -103,7 +104,10 @@ class Calibrator:
         T_coarse, coarse = T_init, []
         if self.config.coarse.enabled:  # Stage 4, coarse: edge alignment where the matcher cannot reach
             search = global_search(frames, T_init, self.config.coarse)
-            T_coarse, coarse = search.T_cam_lidar, search.levels
+            T_coarse, coarse = search.T_cam_lidar, [{"stage": "global", **level} for level in search.levels]
+        if self.config.contour.enabled:  # then the contour score over all six parameters at once
+            climb = contour_refine(frames, T_coarse, self.config.contour)
+            T_coarse, coarse = climb.T_cam_lidar, coarse + [{"stage": "contour", **x} for x in climb.levels]
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
             frames, T_coarse, self.matcher, self.support, self.config, np.random.default_rng(seed)
         )

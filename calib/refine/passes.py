@@ -17,6 +17,7 @@ from calib.geometry import calibration_error
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcherConfig
 from calib.projection import pixel_lookup
+from calib.refine.contour_refine import ContourRefineConfig
 from calib.refine.global_search import GlobalSearchConfig
 from calib.refine.sgis import support_sample, uniform_sample
 from calib.refine.solver import RefineConfig, refine_extrinsic
@@ -56,6 +57,9 @@ class CalibrateConfig(BaseModel):
     min_update_deg: float = Field(0.001, ge=0)
     coarse: GlobalSearchConfig = Field(
         GlobalSearchConfig(), description="the global coarse stage before the dense passes (wide basin)"
+    )
+    contour: ContourRefineConfig = Field(
+        ContourRefineConfig(), description="the contour refinement after the global coarse stage"
     )
     weak_std_cm: float = Field(1.0, gt=0, description="a translation direction with a larger std is weak")
     weak_std_deg: float = Field(0.1, gt=0, description="a rotation direction with a larger std is weak")

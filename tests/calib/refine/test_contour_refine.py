@@ -1,0 +1,105 @@
+"""``calib.refine.contour_refine`` and ``calib.refine.global_search``: on a synthetic world at
+KITTI's pixel scale the score that only rises, the bounds, staying at the truth; known answers on
+the six real KITTI raw frames (10° brought under 4° by the global search, 2° / 10 cm under 0.4° by
+the contour refinement). Neither undoes a 2° error on this synthetic urban world: its scans give
+few contours (about 170 / 80 / 10 samples per frame) and the contour score there is higher 7° away
+than at the truth (0.32 against 0.25 at σ = 1°), so the known answers are on real frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from calib.data import Frame, open_dataset
+from calib.data.real_fixtures import AMZ_DRIVE, AMZ_DRIVE_MORE
+from calib.geometry import calibration_error, perturb
+from calib.pipeline import Calibrator
+from calib.refine.contour_refine import ContourRefineConfig, contour_refine
+from calib.refine.global_search import GlobalSearchConfig, global_search
+from calib.refine.passes import CalibrateConfig
+from calib.synth.generate import Synthesizer
+from calib.synth.synth_config import load_synth_config
+
+KITTI_SCALE = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
+STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}, "camera": KITTI_SCALE}
+
+
+@pytest.fixture(scope="module")
+def urban() -> list[Frame]:
+    synth = Synthesizer(load_synth_config("urban", **STILL), 3, seed=11)
+    return [synth.render(i).frame for i in range(3)]
+
+
+def test_contour_refine_only_raises_the_score(urban):
+    T_ref = urban[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(1))
+    result = contour_refine(urban, T_init, ContourRefineConfig())
+    assert len(result.levels) == len(ContourRefineConfig().sigmas_deg)
+    assert all(level["score_after"] >= level["score_before"] for level in result.levels)
+    assert result.T_cam_lidar.shape == (4, 4)
+
+
+def test_contour_refine_keeps_each_level_within_its_bounds(urban):
+    T_ref = urban[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(3))
+    config = ContourRefineConfig(sigmas_deg=(1.0,), max_rotation_deg=0.2, max_translation_m=0.01)
+    moved = calibration_error(contour_refine(urban, T_init, config).T_cam_lidar, T_init)
+    # box bounds per axis: at most √3 times the bound in length
+    assert moved.rotation_deg <= 0.2 * np.sqrt(3) + 1e-6 and moved.translation_cm <= 1.0 * np.sqrt(3) + 1e-4
+
+
+def test_at_the_truth_it_stays(urban):
+    T_ref = urban[0].calibration.T_cam_lidar
+    error = calibration_error(contour_refine(urban, T_ref).T_cam_lidar, T_ref)
+    assert error.rotation_deg < 0.15 and error.translation_cm < 5.0
+
+
+def test_global_search_only_raises_the_score(urban):
+    T_ref = urban[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 10.0, 5.0, torch.Generator().manual_seed(2))
+    result = global_search(urban, T_init, GlobalSearchConfig(enabled=True))
+    assert all(level["score_after"] >= level["score_before"] for level in result.levels)
+    assert [level["sigma_px"] for level in result.levels] == pytest.approx(
+        [s * 721.5 / 721.0 for s in GlobalSearchConfig().sigmas_px]
+    )
+
+
+def test_the_calibrator_records_both_coarse_stages(urban):
+    T_ref = urban[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(4))
+    config = CalibrateConfig(frames=3, passes=1, contour={"enabled": True, "sigmas_deg": (1.0, 0.5)})
+    result = Calibrator(config=config).calibrate(urban, T_init)
+    assert [level["stage"] for level in result.coarse] == ["contour", "contour"]
+    assert all(level["score_after"] >= level["score_before"] for level in result.coarse)
+    assert len(result.passes) == 1
+
+
+@pytest.fixture(scope="module")
+def kitti_raw(realdata) -> tuple[list[Frame], np.ndarray]:
+    """The six real KITTI raw 2011_09_28 frames (grey camera 0) and their reference."""
+    frames = []
+    for folder in (AMZ_DRIVE, AMZ_DRIVE_MORE):
+        with open_dataset(realdata / folder, camera="0") as seq:
+            frames += list(seq)
+            T_ref = seq.calibration.T_cam_lidar
+    return frames, T_ref
+
+
+@pytest.mark.realdata
+def test_real_kitti_raw_global_search_brings_ten_degrees_under_four(kitti_raw):
+    frames, T_ref = kitti_raw
+    T_init = perturb(T_ref, 50.0, 10.0, torch.Generator().manual_seed(7))
+    result = global_search(frames, T_init, GlobalSearchConfig(enabled=True))
+    assert calibration_error(result.T_cam_lidar, T_ref).rotation_deg < 4.0  # measured 0.95-3.1° (5 draws)
+
+
+@pytest.mark.realdata
+def test_real_kitti_raw_two_degrees_ten_cm_comes_under_half_a_degree(kitti_raw):
+    frames, T_ref = kitti_raw
+    generator = torch.Generator().manual_seed(7)
+    for _ in range(2):
+        T_init = perturb(T_ref, 10.0, 2.0, generator)
+        error = calibration_error(contour_refine(frames, T_init).T_cam_lidar, T_ref)
+        # measured: 8.0 cm / 0.26° from every start (the score's optimum on these six frames)
+        assert error.rotation_deg < 0.4 and error.translation_cm < 12.0
