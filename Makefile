@@ -31,6 +31,8 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_hand_eye.py
 	$(PY) benchmarks/bench_flow_matcher.py
 	$(PY) benchmarks/bench_accuracy.py
+	$(PY) benchmarks/bench_check.py
+	$(PY) benchmarks/bench_real.py
 	$(PY) benchmarks/report.py
 
 # The README's results tables, from what `make bench` left in benchmarks/results/ (bench never

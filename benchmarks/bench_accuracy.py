@@ -2,7 +2,8 @@
 both worlds, paired runs from a 10 cm / 2° error; and Stage 1 from motion on 300-frame sequences.
 
 Everything is synthesised in a temporary folder with fixed seeds: Stage 4 on the held-out seed 9
-(80 frames, the shipped predictor never saw it), Stage 1 on seed 21. Prints a table and writes
+(80 frames, the shipped predictor never saw it), Stage 1 on seed 21, all at the small 624x188 size
+the shipped predictor was trained on (``small=True``). Prints a table and writes
 benchmarks/results/accuracy.json.
 
     python benchmarks/bench_accuracy.py [--runs 10] [--stage1-frames 300]
@@ -32,7 +33,7 @@ WORLDS = ("vineyard", "urban")
 
 def stage4(world: str, tmp: Path, runs: int, console: Console) -> dict:
     data = tmp / world
-    run_synth(world, 80, 9, data, "09", console=console)
+    run_synth(world, 80, 9, data, "09", console=console, small=True)
     maps = run_maps(data, "09", tmp / f"maps_{world}", load_maps_config(), console=console)
     result = run_calibrate(
         data, "09", f"uniform,offline:{maps},onnx", "perturb:10,2", tmp / f"cal_{world}",
@@ -47,7 +48,7 @@ def stage4(world: str, tmp: Path, runs: int, console: Console) -> dict:
 
 def stage1(world: str, tmp: Path, frames: int, console: Console) -> dict:
     data = tmp / f"{world}_s1"
-    run_synth(world, frames, 21, data, "01", console=console)
+    run_synth(world, frames, 21, data, "01", console=console, small=True)
     start = time.perf_counter()
     try:
         r = run_init_calib(data, "01", tmp / f"s1_{world}", load_stage1_config(), console=console)

@@ -16,6 +16,7 @@ the smallest error each dataset shows) and writes ``benchmarks/results/check.jso
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 import time
 import zlib
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from results_io import save_results
+from results_io import RESULTS, save_results
 
 from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import check_fixtures, realdata_root
@@ -163,6 +164,12 @@ def main() -> None:
     start = time.perf_counter()
     print(HEADER)
     results: dict = {"config": config.model_dump(mode="json"), "draws": args.draws, "sizes": SIZES}
+    earlier = RESULTS / "check.json"
+    if args.only and earlier.exists():  # keep the other part when it was made with the same settings
+        kept = json.loads(earlier.read_text())
+        if kept.get("config") == results["config"] and kept.get("draws") == args.draws:
+            other = "synthetic" if args.only == "real" else "real"
+            results.update({k: kept[k] for k in (other, f"{other}_summary") if k in kept})
     if args.only != "synthetic":
         results["real"] = real_rows(config, args.draws)
         results["real_summary"] = summary(results["real"])

@@ -5,10 +5,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+RESULTS = Path(__file__).parent / "results"
+"""Where the JSON files go."""
+
 
 def save_results(name: str, rows: dict) -> Path:
     """Write ``rows`` as ``benchmarks/results/<name>.json`` and return the path."""
-    out = Path(__file__).parent / "results" / f"{name}.json"
+    out = RESULTS / f"{name}.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps(rows, indent=2) + "\n")
     return out

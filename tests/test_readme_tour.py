@@ -3,11 +3,12 @@
 
 Kept small through the environment: ``--frames N`` becomes ``--frames min(N, F)`` with
 ``F = SUPPORTNET_TOUR_FRAMES`` (default 20), ``--runs N`` becomes ``--runs min(N, R)`` with
-``R = SUPPORTNET_TOUR_RUNS`` (default 1). One exception: the sequence the tour's ``init-calib``
-reads keeps at least ``STAGE1_FRAMES`` frames, because the synthetic urban drive reaches its first
-corner only after 30 m and Stage 1 rightly refuses motion without rotation. ``.venv/bin/`` becomes
-the folder of this interpreter (the test's venv). ``make`` lines are not run (they build the
-checkout's own venv); the tour has none today. Slow: many minutes on two cores.
+``R = SUPPORTNET_TOUR_RUNS`` (default 1), and ``synth`` renders the small 624x188 camera
+(``--small``) unless ``SUPPORTNET_TOUR_SMALL=0``. One exception: the sequence the tour's
+``init-calib`` reads keeps at least ``STAGE1_FRAMES`` frames, because the synthetic urban drive
+reaches its first corner only after 30 m and Stage 1 rightly refuses motion without rotation.
+``.venv/bin/`` becomes the folder of this interpreter (the test's venv). ``make`` lines are not
+run (they build the checkout's own venv); the tour has none today. Slow: many minutes on two cores.
 
     .venv/bin/python -m pytest -m slow tests/test_readme_tour.py -s   # -s prints each step's time
 """
@@ -28,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 START, END = "<!-- tour:start -->", "<!-- tour:end -->"
 FRAMES = int(os.environ.get("SUPPORTNET_TOUR_FRAMES", "20"))
 RUNS = int(os.environ.get("SUPPORTNET_TOUR_RUNS", "1"))
+SMALL = os.environ.get("SUPPORTNET_TOUR_SMALL", "1") != "0"
 STAGE1_FRAMES = 60
 """Frames of the urban drive (8 m/s, 10 Hz) up to and around its first corner."""
 
@@ -74,9 +76,11 @@ def scaled(
     frames: int = FRAMES,
     runs: int = RUNS,
     stage1: tuple[str | None, str | None] = (None, None),
+    small: bool = SMALL,
 ) -> str:
     """``command`` as the test runs it: this venv's ``bin``, fewer frames and runs (``synth`` of
-    the ``stage1`` dataset and sequence: at least ``STAGE1_FRAMES``)."""
+    the ``stage1`` dataset and sequence: at least ``STAGE1_FRAMES``), ``synth --small`` when
+    ``small``."""
     if (
         " synth " in command
         and stage1[0]
@@ -84,6 +88,8 @@ def scaled(
     ):
         frames = max(frames, STAGE1_FRAMES)
     command = command.replace(".venv/bin/", f"{bin_dir}/")
+    if small and "--small" not in command:
+        command = command.replace("supportnet synth ", "supportnet synth --small ", 1)
     command = re.sub(r"--frames (\d+)", lambda m: f"--frames {min(int(m[1]), frames)}", command)
     return re.sub(r"--runs (\d+)", lambda m: f"--runs {min(int(m[1]), runs)}", command)
 
@@ -102,7 +108,11 @@ def test_tour_parsing_keeps_continued_and_quoted_lines_together():
     commands = tour_commands(readme)
     assert len(commands) == 3
     assert commands[1].endswith("--runs 10") and commands[2].endswith('b]"')
-    assert scaled(commands[0], Path("/v/bin"), 7).startswith("/v/bin/supportnet synth --frames 7 ")
+    assert scaled(commands[0], Path("/v/bin"), 7, small=False).startswith(
+        "/v/bin/supportnet synth --frames 7 "
+    )
+    assert scaled(commands[0], Path("/v/bin"), 7).startswith("/v/bin/supportnet synth --small --frames 7 ")
+    assert "--small" not in scaled(commands[1], Path("/v/bin"))
     assert scaled(commands[1], Path("/v/bin"), runs=3).endswith("--runs 3")
     keep = scaled(commands[0], Path("/v/bin"), 7, stage1=("d", None))
     assert f"--frames {STAGE1_FRAMES} " in keep

@@ -3,7 +3,8 @@ seeds (``python -m train.recipe support`` and ``... flow``).
 
 The support predictor:
 
-1. Synthetic sequences: three of each world to train on, one of each held out (seed 9).
+1. Synthetic sequences: three of each world to train on, one of each held out (seed 9), at the
+   small 624x188 size (``supportnet synth --small``) the shipped models were trained on.
 2. Offline support maps of each (Stage 3 under the reference calibration).
 3. Training with ``configs/train.yaml`` (its sources are the folders written here).
 4. Export to ONNX (checked) as ``supportnet/assets/support_unet.onnx``.
@@ -53,7 +54,7 @@ def _synthesise(frames: int, console: Console, maps: bool) -> None:
     for world in ("vineyard", "urban"):
         for sequence, seed in SEQUENCES.items():
             if not (ROOT / world / "sequences" / sequence).is_dir():
-                run_synth(world, frames, seed, ROOT / world, sequence, console=console)
+                run_synth(world, frames, seed, ROOT / world, sequence, console=console, small=True)
             folder = ROOT / "maps" / f"{world}_{sequence}"
             if maps and not folder.is_dir():
                 run_maps(ROOT / world, sequence, folder, load_maps_config(), resume=True, console=console)

@@ -64,11 +64,20 @@ def synth(
     fmt: Annotated[
         str, typer.Option("--format", help="kitti (KITTI odometry layout) or bag (a ROS 2 bag folder).")
     ] = "kitti",
+    small: Annotated[
+        bool,
+        typer.Option(
+            "--small",
+            help="Render 624x188 (f = 360.8, 2-3x faster) instead of the world's real pixel scale "
+            "(urban 1242x375, vineyard 960x540); replaces the camera of --config too.",
+        ),
+    ] = False,
     overwrite: Overwrite = False,
 ) -> None:
     """Write a synthetic sequence with ground truth: images, scans, point and pixel labels,
     poses, the reference extrinsic (calib.txt) and meta.json (with drift: every frame's true
-    extrinsic); or the same frames as a ROS 2 bag."""
+    extrinsic); or the same frames as a ROS 2 bag. Urban renders KITTI's 1242x375 camera, the
+    vineyard the BLT ZED2 at half resolution (960x540); --small renders 624x188 for speed."""
     from supportnet.cli.cmd_synth import parse_drift, run_synth
 
     run_synth(
@@ -82,6 +91,7 @@ def synth(
         workers,
         drift=parse_drift(drift),
         fmt=fmt,
+        small=small,
     )
 
 

@@ -1,6 +1,8 @@
 """``supportnet demo``: the whole pipeline on a small default, with a report a person reads.
 
-1. A small vineyard and urban sequence (held-out seed: the shipped predictor never saw them).
+1. A small vineyard and urban sequence (held-out seed: the shipped predictor never saw them),
+   rendered at the small 624x188 size (``load_synth_config(small=True)``), not the worlds'
+   full-resolution default: the demo must stay fast, and the shipped models were trained on it.
 2. Stage 2 + 3 offline: EdgeMatcher residuals under the reference, support maps (Eq. 2), and the
    paper's class-wise residual chart (Experiments 1 and 2).
 3. Stage 1 from motion (KISS-ICP, OpenCV, hand–eye), or its report of what the motion cannot tell.
@@ -56,13 +58,15 @@ DRIVES = {"vineyard": {}, "urban": {"start_before_turn_m": 1.0}}
 
 
 def synthetic_scenes(workdir: Path, frames: int = 3) -> list[tuple[str, Frame, np.ndarray | None]]:
-    """One frame of a small synthetic sequence of each world, written and read back."""
+    """One frame of a small (624x188) synthetic sequence of each world, written and read back."""
     from calib.synth.generate import Synthesizer, write_sequence
     from calib.synth.synth_config import load_synth_config
 
     scenes = []
     for world in ("vineyard", "urban"):
-        write_sequence(Synthesizer(load_synth_config(world), frames, seed=0), workdir / world, "00")
+        write_sequence(
+            Synthesizer(load_synth_config(world, small=True), frames, seed=0), workdir / world, "00"
+        )
         with open_dataset(workdir / world, sequence="00") as seq:
             scenes.append((f"synthetic {world}", seq[frames - 1], None))
     return scenes
@@ -132,7 +136,7 @@ def run_pipeline(world: str, out: Path, frames: int, runs: int, console: Console
     with contextlib.chdir(out):  # relative paths: the report and every result.json name what is beside them
         data = Path("data")
         with console.status(f"synthesising {frames} {world} frames"):
-            synth = Synthesizer(load_synth_config(world, drive=DRIVES[world]), frames, DEMO_SEED)
+            synth = Synthesizer(load_synth_config(world, small=True, drive=DRIVES[world]), frames, DEMO_SEED)
             write_sequence(synth, data, SEQUENCE, workers=2)
         maps = run_maps(data, SEQUENCE, Path("maps"), load_maps_config(), console=console)
         classes = run_analyze(

@@ -63,12 +63,15 @@ def run_synth(
     console: Console | None = None,
     drift: tuple[float, float] = (0.0, 0.0),
     fmt: str = "kitti",
+    small: bool = False,
 ) -> Path:
     """Generate ``out/sequences/<sequence>`` (and ``out/poses/<sequence>.txt``) atomically, or
     with ``fmt="bag"`` the same frames as a ROS 2 bag folder ``out/<sequence>_bag`` (image,
     camera_info, PointCloud2, /tf_static; ``meta.json`` and ``config.yaml`` inside).
 
     Other sequences already in ``out`` are kept, so several seeds can share one dataset root.
+    The packaged worlds render at real pixel scale (urban 1242x375, vineyard 960x540); ``small``
+    renders 624x188 instead (:data:`~calib.synth.synth_config.SMALL_CAMERA`, ``--small``).
 
     Returns:
         The sequence folder (or the bag folder).
@@ -92,7 +95,7 @@ def run_synth(
         raise DataError(
             pose_file, f"already exists without {seq_dir}; remove it or choose another --sequence"
         )
-    cfg = load_synth_config(world, config)
+    cfg = load_synth_config(world, config, small=small)
     start = time.perf_counter()
     synth = Synthesizer(cfg, frames, seed, drift)
     sweep_leftovers(out, f"synth-{sequence}")

@@ -22,7 +22,7 @@ FAST = CalibrateConfig(frames=3, passes=2, sampling={"per_frame": 1500}, online=
 
 @pytest.fixture(scope="module")
 def frames():
-    synth = Synthesizer(load_synth_config("vineyard", **STILL), 7, seed=5)
+    synth = Synthesizer(load_synth_config("vineyard", small=True, **STILL), 7, seed=5)
     return [synth.render(i).frame for i in range(7)]
 
 

@@ -23,7 +23,9 @@ def readme_example() -> str:
 @pytest.fixture(scope="module")
 def synth_dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("api")
-    write_sequence(Synthesizer(load_synth_config("urban"), 11, seed=3), root / "data" / "synth", "01")
+    write_sequence(
+        Synthesizer(load_synth_config("urban", small=True), 11, seed=3), root / "data" / "synth", "01"
+    )
     return root
 
 

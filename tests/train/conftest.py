@@ -10,6 +10,6 @@ def tiny_worlds(tmp_path_factory):
     root = tmp_path_factory.mktemp("tiny")
     sources = []
     for world, sequence, split in (("vineyard", "00", "train"), ("urban", "01", "val")):
-        write_sequence(Synthesizer(load_synth_config(world), 3, seed=1), root / world, sequence)
+        write_sequence(Synthesizer(load_synth_config(world, small=True), 3, seed=1), root / world, sequence)
         sources.append({"data": str(root / world), "sequence": sequence, "split": split})
     return root, sources

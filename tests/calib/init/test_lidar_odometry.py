@@ -24,7 +24,7 @@ def test_drift_known_answers():
 
 
 def test_kiss_icp_follows_the_synthetic_street():
-    synth = Synthesizer(load_synth_config("urban"), 12, seed=4)
+    synth = Synthesizer(load_synth_config("urban", small=True), 12, seed=4)
     scans = [item.frame.points for item in synth.frames(workers=2)]
     result = drift(lidar_odometry(scans, max_range_m=60.0, voxel_size_m=0.6), synth.lidar_poses())
     assert result["path_m"] > 8.0

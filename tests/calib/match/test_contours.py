@@ -17,7 +17,7 @@ STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}}
 
 @pytest.fixture(scope="module")
 def urban() -> list[Frame]:
-    synth = Synthesizer(load_synth_config("urban", **STILL), 2, seed=5)
+    synth = Synthesizer(load_synth_config("urban", small=True, **STILL), 2, seed=5)
     return [synth.render(i).frame for i in range(2)]
 
 

@@ -20,8 +20,8 @@ STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}}
 
 @pytest.fixture(scope="module")
 def still_vineyard():
-    """Two frames of a still vineyard at the default 624x188 (camera and LiDAR fire together)."""
-    synth = Synthesizer(load_synth_config("vineyard", **STILL), 12, seed=3)
+    """Two frames of a still vineyard at the small 624x188 (camera and LiDAR fire together)."""
+    synth = Synthesizer(load_synth_config("vineyard", small=True, **STILL), 12, seed=3)
     return [synth.render(i).frame for i in (2, 9)]
 
 

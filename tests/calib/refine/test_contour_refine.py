@@ -27,7 +27,7 @@ STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}, "came
 
 @pytest.fixture(scope="module")
 def urban() -> list[Frame]:
-    synth = Synthesizer(load_synth_config("urban", **STILL), 3, seed=11)
+    synth = Synthesizer(load_synth_config("urban", small=True, **STILL), 3, seed=11)
     return [synth.render(i).frame for i in range(3)]
 
 

@@ -103,6 +103,8 @@ def test_independent_checker_accepts_a_default_sequence(tmp_path):
     checker = Path(__file__).resolve().parents[4] / "shared" / "checks" / "check_synth.py"
     if not checker.is_file():
         pytest.skip("the shared checker is not present on this machine")
-    seq = write_sequence(Synthesizer(load_synth_config("vineyard"), 3, seed=1), tmp_path, "00", workers=2)
+    seq = write_sequence(
+        Synthesizer(load_synth_config("vineyard", small=True), 3, seed=1), tmp_path, "00", workers=2
+    )
     result = subprocess.run([sys.executable, str(checker), str(seq), "0.90"], capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr

@@ -8,6 +8,7 @@ import time
 import pytest
 
 from calib.data.custom import write_custom
+from calib.data.io import read_image
 from calib.data.kitti_odometry import write_kitti_odometry
 from tests.conftest import make_frames
 
@@ -125,6 +126,17 @@ def test_synth_writes_a_sequence_info_reads_and_refuses_to_overwrite(tmp_path):
     again = run_cli(*args)
     assert again.returncode == 2 and "already exists" in again.stderr and "Traceback" not in again.stderr
     assert [p.name for p in (tmp_path / "data").iterdir() if p.name.startswith(".")] == []
+
+
+def test_synth_small_writes_the_small_camera(tmp_path):
+    out = tmp_path / "data"
+    result = run_cli(
+        "synth", "--world", "vineyard", "--frames", "1", "--out", out, "--small", "--workers", "1"
+    )
+    assert result.returncode == 0, result.stderr
+    seq = out / "sequences" / "00"
+    assert read_image(seq / "image_2" / "000000.png").shape == (188, 624, 3)
+    assert "width: 624" in (seq / "config.yaml").read_text()
 
 
 def test_synth_config_typo_is_one_line_error(tmp_path):

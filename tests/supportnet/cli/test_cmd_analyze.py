@@ -18,7 +18,7 @@ def vineyard(tmp_path_factory):
     1.2 m/s, so under the reference the near rows (leaves, posts, trunks at 2–3 m) appear a
     couple of pixels off and far buildings much less (parallax ∝ 1 / depth)."""
     root = tmp_path_factory.mktemp("vineyard")
-    write_sequence(Synthesizer(load_synth_config("vineyard"), 4, seed=4), root, "00")
+    write_sequence(Synthesizer(load_synth_config("vineyard", small=True), 4, seed=4), root, "00")
     return root
 
 

@@ -20,7 +20,7 @@ FAST = CalibrateConfig(frames=3, passes=2, sampling={"per_frame": 1500})
 @pytest.fixture(scope="module")
 def still_vineyard(tmp_path_factory):
     root = tmp_path_factory.mktemp("vineyard")
-    write_sequence(Synthesizer(load_synth_config("vineyard", **STILL), 6, seed=5), root, "00")
+    write_sequence(Synthesizer(load_synth_config("vineyard", small=True, **STILL), 6, seed=5), root, "00")
     return root
 
 
@@ -86,7 +86,7 @@ def test_parse_errors_are_one_line(tmp_path):
 
 def test_offline_maps_of_another_dataset_or_corrupt_are_refused(still_vineyard, tmp_path):
     other = tmp_path / "other"
-    write_sequence(Synthesizer(load_synth_config("vineyard", **STILL), 3, seed=6), other, "00")
+    write_sequence(Synthesizer(load_synth_config("vineyard", small=True, **STILL), 3, seed=6), other, "00")
     maps = run_maps(other, "00", tmp_path / "maps_other", load_maps_config())
     with pytest.raises(DataError, match="another dataset"):
         run_calibrate(still_vineyard, "00", f"offline:{maps}", "perturb:10,2", tmp_path / "cal", FAST)

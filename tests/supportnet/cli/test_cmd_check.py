@@ -40,7 +40,7 @@ def strict_json(path: Path) -> dict:
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
     root = tmp_path_factory.mktemp("urban")
-    write_sequence(Synthesizer(load_synth_config("urban", **STILL), 2, seed=5), root, "00")
+    write_sequence(Synthesizer(load_synth_config("urban", small=True, **STILL), 2, seed=5), root, "00")
     with open_dataset(root, sequence="00") as seq:
         T = seq.calibration.T_cam_lidar
     files = tmp_path_factory.mktemp("extrinsics")

@@ -12,7 +12,7 @@ from supportnet.cli.cmd_init_calib import run_init_calib
 
 
 def _vineyard(root, frames, start_before_turn_m):
-    config = load_synth_config("vineyard", drive={"start_before_turn_m": start_before_turn_m})
+    config = load_synth_config("vineyard", small=True, drive={"start_before_turn_m": start_before_turn_m})
     write_sequence(Synthesizer(config, frames, seed=2), root, "00")
     return root
 

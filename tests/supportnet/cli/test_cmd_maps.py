@@ -13,7 +13,7 @@ from supportnet.runtime.matcher_factory import build_matcher
 @pytest.fixture(scope="module")
 def vineyard(tmp_path_factory):
     root = tmp_path_factory.mktemp("vineyard")
-    write_sequence(Synthesizer(load_synth_config("vineyard"), 3, seed=4), root, "00")
+    write_sequence(Synthesizer(load_synth_config("vineyard", small=True), 3, seed=4), root, "00")
     return root
 
 

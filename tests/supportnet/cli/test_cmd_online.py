@@ -38,7 +38,7 @@ def test_the_filter_follows_consistent_windows_and_grows_confident():
 
 
 def test_synthetic_drift_is_exact_and_recorded(tmp_path):
-    synth = Synthesizer(load_synth_config("urban"), 5, seed=3, drift=(4.0, 1.0))
+    synth = Synthesizer(load_synth_config("urban", small=True), 5, seed=3, drift=(4.0, 1.0))
     assert calibration_error(synth.extrinsic(4), synth.T_cam_lidar).translation_cm == pytest.approx(4.0)
     assert calibration_error(synth.extrinsic(2), synth.T_cam_lidar).rotation_deg == pytest.approx(0.5)
     assert np.allclose(synth.extrinsic(0), synth.T_cam_lidar)
@@ -52,7 +52,9 @@ def test_synthetic_drift_is_exact_and_recorded(tmp_path):
 
 
 def test_online_calibration_tracks_an_injected_drift(tmp_path):
-    write_sequence(Synthesizer(load_synth_config("urban"), 40, seed=5, drift=(2.0, 2.0)), tmp_path, "00")
+    write_sequence(
+        Synthesizer(load_synth_config("urban", small=True), 40, seed=5, drift=(2.0, 2.0)), tmp_path, "00"
+    )
     config = load_calibrate_config().model_copy(update={"online": OnlineConfig(window=10, step=10)})
     out = run_online(tmp_path, "00", "uniform", "perturb:0,0", tmp_path / "online", config)
     first, last = out["windows"][0], out["windows"][-1]
@@ -72,8 +74,8 @@ def test_synth_writes_the_same_frames_as_a_ros_bag(tmp_path):
     from calib.data import open_dataset
     from supportnet.cli.cmd_synth import run_synth
 
-    bag = run_synth("urban", 3, 2, tmp_path, "00", drift=(2.0, 1.0), fmt="bag", workers=1)
-    kitti = run_synth("urban", 3, 2, tmp_path / "kitti", "00", drift=(2.0, 1.0), workers=1)
+    bag = run_synth("urban", 3, 2, tmp_path, "00", drift=(2.0, 1.0), fmt="bag", workers=1, small=True)
+    kitti = run_synth("urban", 3, 2, tmp_path / "kitti", "00", drift=(2.0, 1.0), workers=1, small=True)
     assert bag == tmp_path / "00_bag" and (bag / "metadata.yaml").is_file()
     with open_dataset(bag) as from_bag, open_dataset(kitti.parent.parent, sequence="00") as from_kitti:
         assert len(from_bag) == 3

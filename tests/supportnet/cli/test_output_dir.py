@@ -72,14 +72,14 @@ def dead_pid() -> int:
 @pytest.fixture(scope="module")
 def vineyard(tmp_path_factory):
     root = tmp_path_factory.mktemp("vineyard")
-    write_sequence(Synthesizer(load_synth_config("vineyard"), 2, seed=4), root, "00")
+    write_sequence(Synthesizer(load_synth_config("vineyard", small=True), 2, seed=4), root, "00")
     return root
 
 
 @pytest.fixture(scope="module")
 def other_vineyard(tmp_path_factory):
     root = tmp_path_factory.mktemp("other")
-    write_sequence(Synthesizer(load_synth_config("vineyard"), 2, seed=5), root, "00")
+    write_sequence(Synthesizer(load_synth_config("vineyard", small=True), 2, seed=5), root, "00")
     return root
 
 
@@ -287,7 +287,7 @@ def test_sigterm_during_synth_leaves_nothing(tmp_path):
     """SIGTERM unwinds the main process (its workers end quietly), and the dataset root it
     created goes too."""
     out = tmp_path / "D"
-    args = ["synth", "--world", "vineyard", "--frames", "40", "--seed", "1", "--out", out]
+    args = ["synth", "--world", "vineyard", "--frames", "40", "--seed", "1", "--out", out, "--small"]
     proc = subprocess.Popen([SUPPORTNET, *map(str, args)], stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not any(out.glob(".synth-00.supportnet-tmp-*/sequences")):

@@ -1,0 +1,102 @@
+"""benchmarks/bench_real.py's bookkeeping (start draws, success, merging) and its README table in
+benchmarks/report.py, without running a calibration."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import bench_real  # noqa: E402
+import report  # noqa: E402
+
+from calib.geometry import calibration_error  # noqa: E402
+
+
+def _T() -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = [[0, -1, 0], [0, 0, -1], [1, 0, 0]]
+    T[:3, 3] = [0.1, -0.2, 0.3]
+    return T
+
+
+@pytest.mark.parametrize("shell", [False, True])
+def test_starts_lie_in_the_ball_or_on_its_shell(shell):
+    generator = torch.Generator().manual_seed(3)
+    sizes = []
+    for _ in range(200):
+        e = calibration_error(bench_real.draw_start(_T(), 50.0, 10.0, generator, shell), _T())
+        sizes.append((e.translation_cm, e.rotation_deg))
+    cm, deg = np.array(sizes).T
+    if shell:
+        np.testing.assert_allclose(cm, 50.0, atol=1e-6)
+        np.testing.assert_allclose(deg, 10.0, atol=1e-6)
+    else:
+        assert cm.max() <= 50.0 + 1e-9 and deg.max() <= 10.0 + 1e-9
+        # uniform in the ball: P(size <= r/2) = 1/8
+        assert 0.05 < np.mean(cm <= 25.0) < 0.22 and 0.05 < np.mean(deg <= 5.0) < 0.22
+
+
+def test_same_seed_same_start():
+    draws = [
+        bench_real.draw_start(_T(), 10.0, 2.0, torch.Generator().manual_seed(7), False) for _ in range(2)
+    ]
+    np.testing.assert_array_equal(*draws)
+
+
+def _run(cm, deg, raised=None):
+    final = None if raised else {"cm": cm, "deg": deg}
+    return {
+        "start": {"cm": 8.0, "deg": 1.5},
+        "final": final,
+        "seconds": 2.0,
+        "converged": False,
+        "raised": raised,
+    }
+
+
+def test_success_thresholds_and_raised_runs():
+    runs = [_run(1.0, 0.1), _run(3.0, 0.3), _run(10.0, 0.1), _run(0, 0, raised="DataError: no points")]
+    multi, single = bench_real.summarise(runs, frames=6), bench_real.summarise(runs, frames=1)
+    assert multi["success_rate"] == 0.25 and single["success_rate"] == 0.5
+    assert multi["raised"] == 1 and multi["runs"] == 4
+    assert multi["cm_median"] == 3.0  # of the three runs that returned
+    assert multi["threshold_cm_deg"] == [2.0, 0.2] and single["threshold_cm_deg"] == [5.0, 0.5]
+
+
+def _result(name: str, runs: int) -> dict:
+    summary = bench_real.summarise([_run(1.0, 0.1)] * runs, frames=6)
+    return {
+        "levels": {"2": [10.0, 2.0]},
+        "success_cm_deg": bench_real.SUCCESS,
+        "variants": {"dense": "dense"},
+        "configs": {},
+        "notes": {},
+        "runs": runs,
+        "seconds": 1.0,
+        "start_draw": "ball",
+        "real": {name: {"frames": 6, "levels": {"2": {"dense": {"summary": summary, "runs": []}}}}},
+        "synthetic": {},
+    }
+
+
+def test_merge_keeps_the_other_datasets():
+    out = bench_real.merged(_result("a", 5), _result("b", 2))
+    assert set(out["real"]) == {"a", "b"} and out["runs"] == [5, 2]
+
+
+def test_report_has_a_real_data_table(monkeypatch):
+    monkeypatch.setattr(
+        report, "_load", lambda name: _result("kitti-raw-0928-all6", 5) if name == "bench_real" else None
+    )
+    text = "\n".join(report.real_data())
+    assert "### Real data" in text
+    assert (
+        "| kitti-raw-0928-all6 | 6 | 2° / 10 cm | dense | 5 | 100% | 1.00 / 1.00 | 0.100 / 0.100 | 0 |"
+        in text
+    )
