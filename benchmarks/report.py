@@ -297,12 +297,43 @@ def measured_on() -> str | None:
     return datetime.date.fromtimestamp(max(stamps)).isoformat() if stamps else None
 
 
+def replace_section(readme: str, lines: list[str]) -> str:
+    """``readme`` with the results block's ``### `` section of the same title as ``lines`` replaced
+    by them (added at the block's end when it has none)."""
+    if START not in readme or END not in readme:
+        raise SystemExit(f"report.py: the README has no {START} ... {END} section")
+    head, rest = readme.split(START, 1)
+    block, tail = rest.split(END, 1)
+    title = lines[0]
+    text = "\n".join(lines) + "\n"
+    found = re.search(rf"^{re.escape(title)}\n.*?(?=^### |\Z)", block, flags=re.S | re.M)
+    block = block[: found.start()] + text + "\n" + block[found.end() :] if found else block + "\n" + text
+    return head + START + block.replace("\n\n\n", "\n\n") + END + tail
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--readme", type=Path, default=None, help="Also rewrite this README's results section."
     )
+    parser.add_argument(
+        "--only",
+        default=None,
+        help="comma-separated sections (real, check) to replace in the README, keeping the others as "
+        "they are (for a benchmark run on its own)",
+    )
     args = parser.parse_args()
+    if args.only is not None:
+        if args.readme is None:
+            raise SystemExit("report.py: --only needs --readme")
+        pick = {"real": real_data, "check": check}
+        if bad := [name for name in args.only.split(",") if name not in pick]:
+            raise SystemExit(f"report.py: unknown section(s) {', '.join(bad)}; choose from {', '.join(pick)}")
+        readme = args.readme.read_text()
+        for name in args.only.split(","):
+            readme = replace_section(readme, pick[name]())
+        args.readme.write_text(readme)
+        return
     day = measured_on()
     if day is None:
         raise SystemExit(f"report.py: no results in {RESULTS}: run `make bench` first")
