@@ -90,6 +90,15 @@ def test_merge_keeps_the_other_datasets():
     assert set(out["real"]) == {"a", "b"} and out["runs"] == [5, 2]
 
 
+def test_merge_keeps_the_other_variants_and_levels_of_one_dataset():
+    other = _result("a", 5)
+    other["real"]["a"]["levels"]["2"] = {"global": other["real"]["a"]["levels"]["2"]["dense"]}
+    other["real"]["a"]["levels"]["10"] = {"global": other["real"]["a"]["levels"]["2"]["global"]}
+    out = bench_real.merged(other, _result("a", 2))
+    assert set(out["real"]["a"]["levels"]["2"]) == {"dense", "global"}
+    assert set(out["real"]["a"]["levels"]["10"]) == {"global"}
+
+
 def test_report_has_a_real_data_table(monkeypatch):
     monkeypatch.setattr(
         report, "_load", lambda name: _result("kitti-raw-0928-all6", 5) if name == "bench_real" else None
