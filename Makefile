@@ -33,6 +33,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_accuracy.py
 	$(PY) benchmarks/bench_check.py
 	$(PY) benchmarks/bench_real.py
+	$(PY) benchmarks/bench_stage1.py
 	$(PY) benchmarks/report.py
 
 # The README's results tables, from what `make bench` left in benchmarks/results/ (bench never

@@ -17,7 +17,7 @@ direction ``â_k`` of each camera translation and ``s_k`` is its unknown metric 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -27,7 +27,14 @@ from scipy.spatial.transform import Rotation
 from calib.errors import NumericalError
 from calib.observability import WeakDirection, weak_directions
 
-__all__ = ["HandEyeConfig", "HandEyeResult", "UnobservableError", "WeakDirection", "hand_eye"]
+__all__ = [
+    "HandEyeConfig",
+    "HandEyeResult",
+    "UnobservableError",
+    "WeakDirection",
+    "hand_eye",
+    "refine_hand_eye",
+]
 
 
 class UnobservableError(NumericalError):
@@ -67,6 +74,9 @@ class HandEyeResult:
         used: ``(K,)`` bool, the pairs rotating enough for the closed-form rotation (every pair
             enters the linear translation step and the refinement).
         inlier_ratio: share of pairs whose residuals stay within the Cauchy scale.
+        information: ``(6, 6)`` what the motion pairs alone say about (rotation vector, translation)
+            at the solution: ``Jᵀ J`` of the robustly weighted, σ-normalised pair residuals with the
+            scales marginalised and the prior on ``t_X`` left out (the degeneracy tests read it).
     """
 
     T_cam_lidar: np.ndarray
@@ -80,6 +90,7 @@ class HandEyeResult:
     inlier_ratio: float
     cost: float
     notes: list[str] = field(default_factory=list)
+    information: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
 
     def report(self) -> dict:
         """The standard deviations and weak directions, as JSON-ready values."""
@@ -169,6 +180,13 @@ def _weak_directions(
     return weak, std_deg, std_cm
 
 
+def _rotating(A: np.ndarray, B: np.ndarray, config: HandEyeConfig) -> np.ndarray:
+    """``(K,)`` bool: the pairs whose camera and LiDAR motions both rotate ``min_rotation_deg``."""
+    angle_A = np.degrees(np.linalg.norm(Rotation.from_matrix(A[:, :3, :3]).as_rotvec(), axis=1))
+    angle_B = np.degrees(np.linalg.norm(Rotation.from_matrix(B[:, :3, :3]).as_rotvec(), axis=1))
+    return (angle_A >= config.min_rotation_deg) & (angle_B >= config.min_rotation_deg)
+
+
 def hand_eye(A: np.ndarray, B: np.ndarray, config: HandEyeConfig = HandEyeConfig()) -> HandEyeResult:
     """``T_cam_lidar`` from motion pairs.
 
@@ -182,16 +200,38 @@ def hand_eye(A: np.ndarray, B: np.ndarray, config: HandEyeConfig = HandEyeConfig
     """
     if A.shape != B.shape or A.shape[1:] != (4, 4):
         raise ValueError(f"expected A and B (K, 4, 4), got {A.shape}, {B.shape}")
-    angle_A = np.degrees(np.linalg.norm(Rotation.from_matrix(A[:, :3, :3]).as_rotvec(), axis=1))
-    angle_B = np.degrees(np.linalg.norm(Rotation.from_matrix(B[:, :3, :3]).as_rotvec(), axis=1))
-    used = (angle_A >= config.min_rotation_deg) & (angle_B >= config.min_rotation_deg)
+    used = _rotating(A, B, config)
     if used.sum() < config.min_pairs:
         raise UnobservableError(_no_rotation_report(B, int(used.sum()), config))
     notes: list[str] = []
     R0, t0, s0 = _closed_form(A, B, used, config.metric_camera, notes)
     closed = np.eye(4)
     closed[:3, :3], closed[:3, 3] = R0, t0
-    x0 = np.concatenate([np.zeros(3), t0, [] if config.metric_camera else s0])
+    result = refine_hand_eye(A, B, closed, s0, config)
+    return replace(result, notes=notes)
+
+
+def refine_hand_eye(
+    A: np.ndarray,
+    B: np.ndarray,
+    start: np.ndarray,
+    scales: np.ndarray,
+    config: HandEyeConfig = HandEyeConfig(),
+    max_evaluations: int | None = None,
+) -> HandEyeResult:
+    """The robust joint refinement of ``R_X, t_X, s_k`` from a start (step 2 of the module docstring).
+
+    Args:
+        A, B: ``(K, 4, 4)`` motion pairs, as :func:`hand_eye` takes them.
+        start: ``(4, 4)`` the extrinsic to start from (the closed form, or another solve's answer).
+        scales: ``(K,)`` metric lengths to start from (ignored with ``metric_camera``).
+        max_evaluations: stop after this many residual evaluations (``None``: scipy's default).
+
+    Returns:
+        The refined result, with ``start`` as its ``closed_form``.
+    """
+    R0, t0 = start[:3, :3], start[:3, 3]
+    x0 = np.concatenate([np.zeros(3), t0, [] if config.metric_camera else scales])
     K = len(A)
     sparsity = np.zeros((6 * K + 3, len(x0)), bool)  # pair k: the extrinsic and its own scale
     sparsity[:, :6] = True
@@ -205,15 +245,18 @@ def hand_eye(A: np.ndarray, B: np.ndarray, config: HandEyeConfig = HandEyeConfig
         f_scale=config.loss_scale,
         x_scale="jac",
         jac_sparsity=sparsity,
+        max_nfev=max_evaluations,
     )
     R_X = Rotation.from_rotvec(fit.x[:3]).as_matrix() @ R0
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R_X, fit.x[3:6]
     J = fit.jac.toarray() if hasattr(fit.jac, "toarray") else fit.jac  # sparse with jac_sparsity
-    info = J.T @ J
+    info, data_info = J.T @ J, J[:-3].T @ J[:-3]  # with and without the prior's three rows
     # marginalise the scales (Schur complement); rotation is a left perturbation in the camera frame
     if not config.metric_camera:
-        info = info[:6, :6] - info[:6, 6:] @ np.linalg.pinv(info[6:, 6:]) @ info[6:, :6]
+        info, data_info = (
+            M[:6, :6] - M[:6, 6:] @ np.linalg.pinv(M[6:, 6:]) @ M[6:, :6] for M in (info, data_info)
+        )
     covariance = np.linalg.pinv(info[:6, :6], rcond=1e-12, hermitian=True)
     values, vectors = np.linalg.eigh(info[:6, :6])
     if values[0] <= 1e-9 * values[-1]:  # an exactly blind direction: its std is unbounded
@@ -223,16 +266,16 @@ def hand_eye(A: np.ndarray, B: np.ndarray, config: HandEyeConfig = HandEyeConfig
     inliers = float(np.mean(np.abs(residual).max(axis=1) <= config.loss_scale))
     return HandEyeResult(
         T_cam_lidar=T,
-        closed_form=closed,
+        closed_form=start.copy(),
         scales=(np.ones(len(A)) if config.metric_camera else fit.x[6:]),
         covariance=covariance,
         std_deg=std_deg,
         std_cm=std_cm,
         weak=weak,
-        used=used,
+        used=_rotating(A, B, config),
         inlier_ratio=inliers,
         cost=float(fit.cost),
-        notes=notes,
+        information=data_info[:6, :6],
     )
 
 

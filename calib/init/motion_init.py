@@ -10,6 +10,11 @@ rotate, so ``(R_A − I) t_X`` is small and a bias of a degree in the visual dir
 our synthetic worlds, against ground truth) moves ``t_X`` by metres. The translation comes from a
 prior instead (the lever arm measured on the robot, zero by default) and Stage 4 refines it; the
 hand–eye translation and its error stay in the report (``translation: motion`` uses it).
+
+Before returning, the degeneracy tests (:mod:`calib.init.degeneracy`: spread of the rotation axes,
+conditioning of the hand–eye rotation, agreement of random halves) decide whether the motion
+determined the rotation; when it did not, Stage 1 refuses (:class:`DegenerateMotionError`) rather
+than return a rotation tens of degrees off with a warning.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib.data.types import Sequence
+from calib.init.degeneracy import DegeneracyConfig, MotionDiagnostics, check_motion, diagnose
 from calib.init.hand_eye import HandEyeConfig, HandEyeResult, UnobservableError, hand_eye
 from calib.init.lidar_odometry import lidar_odometry, sensor_range
 from calib.init.time_sync import interpolate_poses
@@ -55,6 +61,7 @@ class Stage1Config(BaseModel):
         0.15, gt=0, description="LiDAR poses farther apart are not interpolated across"
     )
     hand_eye: HandEyeConfig = HandEyeConfig()
+    degeneracy: DegeneracyConfig = DegeneracyConfig()
     translation: Literal["prior", "motion"] = Field(
         "prior", description="where the extrinsic's translation comes from (see the module docstring)"
     )
@@ -78,6 +85,7 @@ class Stage1Result:
         motions: the camera keyframe motions (unit translations).
         lidar_motions: ``(M, 4, 4)`` the synchronised LiDAR motions, one per kept camera motion.
         kept: ``(len(motions),)`` bool, motions whose stamps could be synchronised.
+        diagnostics: the degeneracy tests' numbers (all passed, or ``degeneracy.refuse`` is off).
         seconds: wall time per step.
         notes: facts a user should know (stamps assumed, planar motion).
     """
@@ -91,6 +99,7 @@ class Stage1Result:
     motions: list[CameraMotion]
     lidar_motions: np.ndarray
     kept: np.ndarray
+    diagnostics: MotionDiagnostics
     seconds: dict[str, float]
     notes: list[str]
 
@@ -101,7 +110,8 @@ def initial_calibration(
     """``T_cam_lidar`` of ``seq`` from its motion alone (no reference used).
 
     Raises:
-        UnobservableError: the motion cannot determine the extrinsic (the message says why).
+        UnobservableError: the motion cannot determine the extrinsic (the message says why);
+            :class:`DegenerateMotionError` (a kind of it) when a degeneracy test failed.
     """
     say = progress or (lambda _: None)
     notes: list[str] = []
@@ -146,6 +156,14 @@ def initial_calibration(
     B = np.linalg.inv(at_camera[kept, 1]) @ at_camera[kept, 0]  # T_lidar_j_lidar_i
     calibration = hand_eye(A, B, config.hand_eye)
     seconds["hand_eye"] = time.perf_counter() - start
+
+    say("degeneracy tests")
+    start = time.perf_counter()
+    diagnostics = diagnose(A, B, calibration, config.hand_eye, config.degeneracy)
+    seconds["degeneracy"] = time.perf_counter() - start
+    check_motion(diagnostics, config.degeneracy, seq.name)
+    if diagnostics.failed:  # refuse is off: the caller asked for the answer anyway
+        notes += [f"degeneracy test failed (degeneracy.refuse is off): {f}" for f in diagnostics.failed]
     T_cam_lidar = calibration.T_cam_lidar.copy()
     if config.translation == "prior":
         T_cam_lidar[:3, 3] = config.translation_prior_m
@@ -163,6 +181,7 @@ def initial_calibration(
         motions=motions,
         lidar_motions=B,
         kept=kept,
+        diagnostics=diagnostics,
         seconds=seconds,
         notes=notes + calibration.notes,
     )

@@ -1,9 +1,10 @@
 """``supportnet init-calib``: Stage 1 on a sequence, with what a user checks it by.
 
 Writes ``result.json`` (the extrinsic, its error against the reference when there is one, its
-standard deviations and weak directions), both trajectories in KITTI and TUM formats (readable by
-evo: ``evo_traj tum lidar.tum camera.tum``), ``trajectories.png`` (both, after alignment, from
-above and from the side) and the resolved ``config.yaml``.
+standard deviations and weak directions, the degeneracy tests' numbers), both trajectories in
+KITTI and TUM formats (readable by evo: ``evo_traj tum lidar.tum camera.tum``),
+``trajectories.png`` (both, after alignment, from above and from the side) and the resolved
+``config.yaml``.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, resolved_config, write_json
 
 __all__ = ["camera_trajectory", "run_init_calib"]
+
 
 def camera_trajectory(result: Stage1Result) -> tuple[np.ndarray, np.ndarray]:
     """Keyframe stamps ``(M,)`` and metric camera poses ``(M, 4, 4)`` ``T_cam0_cam``: the visual
@@ -117,6 +119,7 @@ def run_init_calib(
             **he.report(),
             "covariance": he.covariance.tolist(),
             "observable": not he.weak,
+            "degeneracy": result.diagnostics.to_dict(),
             "frames": len(seq),
             "camera_motions": len(result.motions),
             "synchronised_motions": int(result.kept.sum()),
@@ -150,4 +153,14 @@ def run_init_calib(
     console.print(line, markup=False, highlight=False, soft_wrap=True)
     for weak in he.weak:
         console.print(f"weak: {weak}", markup=False, highlight=False, soft_wrap=True)
+    d, limits = result.diagnostics, config.degeneracy
+    halves = "not run" if np.isnan(d.subset_spread_deg) else f"{d.subset_spread_deg:.2f}° RMS"
+    console.print(
+        f"degeneracy tests: axis spread {d.axis_spread:.3f}, weakest rotation std "
+        f"{d.rotation_std_deg:.2f}° (refused above {limits.max_rotation_std_deg:g}°), halves {halves} "
+        f"(refused above {limits.max_subset_spread_deg:g}°)",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
     return output

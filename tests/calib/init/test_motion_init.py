@@ -1,0 +1,107 @@
+import numpy as np
+import pytest
+
+import calib.init.motion_init as motion_init
+from calib.data.types import Calibration, Frame, Sequence
+from calib.geometry import calibration_error
+from calib.init.degeneracy import DegenerateMotionError, check_motion
+from calib.init.motion_init import initial_calibration, load_stage1_config
+from calib.init.visual_odometry import CameraMotion
+from calib.synth.generate import Synthesizer
+from calib.synth.synth_config import load_synth_config
+from tests.calib.init.test_degeneracy import _arc
+from tests.calib.init.test_hand_eye import _extrinsic
+
+LITE_LIDAR = {
+    "beams": 32,
+    "azimuth_step_deg": 0.4,
+}  # a quarter of the points: KISS-ICP and the ray caster 4x faster
+
+
+class FrameList(Sequence):
+    """Frames in memory as a :class:`Sequence`."""
+
+    def __init__(self, frames: list[Frame], calibration: Calibration, name: str):
+        self._frames, self.calibration, self.name, self.layout = frames, calibration, name, "memory"
+        self.timestamps = np.array([f.timestamp for f in frames])
+        self.notes, self.problems = [], []
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def frame(self, i: int) -> Frame:
+        return self._frames[i]
+
+
+def _synthetic(world: str, frames: int, before_turn_m: float, seed: int) -> tuple[FrameList, np.ndarray]:
+    config = load_synth_config(
+        world, small=True, drive={"start_before_turn_m": before_turn_m}, lidar=LITE_LIDAR
+    )
+    synth = Synthesizer(config, frames, seed=seed)
+    rendered = [item.frame for item in synth.frames()]
+    return FrameList(rendered, synth.calibration, f"{world} seed {seed}"), synth.T_cam_lidar
+
+
+def _rotation_deg(T: np.ndarray, T_ref: np.ndarray) -> float:
+    return calibration_error(T, T_ref).rotation_deg
+
+
+def _report_only():
+    config = load_stage1_config()
+    return config.model_copy(update={"degeneracy": config.degeneracy.model_copy(update={"refuse": False})})
+
+
+def test_an_arc_from_the_odometry_is_refused_or_reported_when_asked(monkeypatch):
+    """The wiring, with both odometries replaced by a vehicle on a circle (exact motions)."""
+    X = _extrinsic()
+    P = _arc(12, 3.0, np.random.default_rng(1))  # T_world_lidar at each frame
+    calibration = Calibration(K=np.diag([300.0, 300.0, 1.0]), T_cam_lidar=X)
+    points = np.ones((10, 4), np.float32)
+    frames = [
+        Frame(np.zeros((4, 4, 3), np.uint8), points, calibration, i, timestamp=0.1 * i) for i in range(len(P))
+    ]
+    motions = []
+    for i in range(len(P) - 1):
+        A = X @ np.linalg.inv(P[i + 1]) @ P[i] @ np.linalg.inv(X)
+        A[:3, 3] /= np.linalg.norm(A[:3, 3])
+        motions.append(CameraMotion(i, i + 1, A, 100, 20.0))
+    monkeypatch.setattr(motion_init, "lidar_odometry", lambda *args, **kwargs: np.linalg.inv(P[0]) @ P)
+    monkeypatch.setattr(motion_init, "visual_odometry", lambda *args, **kwargs: motions)
+    sequence = FrameList(frames, calibration, "arc")
+    with pytest.raises(
+        DegenerateMotionError, match=r"^arc: Stage 1 refuses the rotation from this motion: "
+    ) as e:
+        initial_calibration(sequence)
+    assert "rotation about LiDAR +z undetermined: std unbounded > 1.3° (max_rotation_std_deg" in str(e.value)
+    result = initial_calibration(sequence, _report_only())  # the same, reported instead
+    assert result.diagnostics.failed and np.isinf(result.diagnostics.rotation_std_deg)
+    assert any(n.startswith("degeneracy test failed (degeneracy.refuse is off)") for n in result.notes)
+    assert "degeneracy" in result.seconds
+
+
+def test_a_40_frame_headland_turn_is_refused_and_would_have_been_wrong():
+    """The issue's case: a U-turn on the headland and nothing else. Asked to answer anyway, Stage 1
+    is tens of degrees off about the vertical; the conditioning test names exactly that."""
+    sequence, truth = _synthetic("vineyard", 40, 1.0, seed=2)
+    result = initial_calibration(sequence, _report_only())
+    assert _rotation_deg(result.T_cam_lidar, truth) > 5.0  # the wrong answer it used to return
+    d = result.diagnostics
+    assert d.axis_spread < 0.05 and d.common_axis_lidar[2] > 0.99 and d.rotation_std_deg > 1.3
+    with pytest.raises(
+        DegenerateMotionError, match=r"rotation about LiDAR \+z undetermined: std \d+\.\d\d° > 1\.3°"
+    ):
+        check_motion(d, load_stage1_config().degeneracy, sequence.name)
+
+
+def test_a_well_excited_drive_passes_with_a_small_rotation_error():
+    """An urban corner between straights: every test passes, the rotation is within a degree, and
+    the vertical offset is still reported as weak (planar motion) without a refusal."""
+    sequence, truth = _synthetic("urban", 40, 8.0, seed=103)
+    result = initial_calibration(sequence)  # the shipped thresholds: no refusal
+    assert _rotation_deg(result.T_cam_lidar, truth) < 1.0
+    d = result.diagnostics.to_dict()
+    assert d["determined"] and d["failed"] == [] and d["axis_spread"] < 0.05  # planar, yet determined
+    limits = load_stage1_config().degeneracy
+    assert d["rotation_std_deg"] < limits.max_rotation_std_deg and d["subsets_solved"] == 8
+    assert d["subset_spread_deg"] < limits.max_subset_spread_deg
+    assert any(w.kind == "translation" and w.axis == "+z" for w in result.calibration.weak)
