@@ -28,6 +28,7 @@ __all__ = [
     "se3_inverse",
     "se3_log",
     "so3_log",
+    "twist_steps",
 ]
 
 
@@ -204,3 +205,22 @@ def perturb(
     """
     delta = random_perturbation(translation_cm, rotation_deg, generator=generator)
     return (se3_compose(_as_tensor(T_cam_lidar), delta)).numpy()
+
+
+def twist_steps(rotation: float, translation: float) -> torch.Tensor:
+    """± one step along each twist axis, the moves of a pattern search over SE(3).
+
+    Args:
+        rotation: step of each rotation axis (radians).
+        translation: step of each translation axis (metres).
+
+    Returns:
+        ``(12, 6)`` float64 twists ``(rho, omega)`` (translation first, as :func:`se3_exp`): rows
+        ``2k`` and ``2k + 1`` step axis ``k`` forwards and backwards, so ``[:6]`` are the
+        translation moves and ``[6:]`` the rotation moves.
+    """
+    steps = torch.zeros(12, 6, dtype=torch.float64)
+    for axis in range(6):
+        size = translation if axis < 3 else rotation
+        steps[2 * axis, axis], steps[2 * axis + 1, axis] = size, -size
+    return steps

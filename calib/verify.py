@@ -51,7 +51,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
 from calib.data.extrinsic_file import rigid_problem
 from calib.data.types import Frame
 from calib.errors import DataError
-from calib.geometry import calibration_error, se3_exp
+from calib.geometry import calibration_error, se3_exp, twist_steps
 from calib.match.contours import ContourConfig, ContourScore
 
 __all__ = [
@@ -59,7 +59,6 @@ __all__ = [
     "CHECK_SCHEMA_VERSION",
     "CheckConfig",
     "CheckResult",
-    "ContourScore",
     "FrameCheck",
     "check_extrinsic",
 ]
@@ -124,17 +123,6 @@ class CheckConfig(BaseModel):
     def model_post_init(self, __context: object) -> None:
         if self.m_good > self.m_bad:
             raise ValueError(f"m_good ({self.m_good}) must not exceed m_bad ({self.m_bad})")
-        if min(self.blocks) < 1:
-            raise ValueError(f"blocks must be positive, got {self.blocks}")
-
-
-def _steps(rotation: float, translation: float) -> torch.Tensor:
-    """``(12, 6)`` ± one step along each twist axis (translation first)."""
-    steps = torch.zeros(12, 6, dtype=torch.float64)
-    for axis in range(6):
-        size = translation if axis < 3 else rotation
-        steps[2 * axis, axis], steps[2 * axis + 1, axis] = size, -size
-    return steps
 
 
 def _offsets(T_start: torch.Tensor, T: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -171,7 +159,7 @@ def _climb(
         for _ in range(200):
             if rotation < smallest:
                 break
-            candidates = T @ se3_exp(_steps(rotation, translation)[rows])
+            candidates = T @ se3_exp(twist_steps(rotation, translation)[rows])
             values = score.score(candidates, sigma, mask)
             angle, shift = _offsets(origin, candidates)
             values = torch.where((angle > max_r + 1e-9) | (shift > max_t + 1e-9), -1.0, values)

@@ -15,7 +15,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 
 from calib.data.types import Frame
-from calib.geometry import se3_exp
+from calib.geometry import se3_exp, twist_steps
 from calib.match.edge_alignment import EdgeAlignment
 
 __all__ = ["GlobalSearchConfig", "GlobalSearchResult", "global_search"]
@@ -51,15 +51,6 @@ class GlobalSearchResult:
     levels: list[dict]
 
 
-def _steps(rotation: float, translation: float) -> torch.Tensor:
-    """``(12, 6)`` ± one step along each twist axis (translation first, as kornia's ``Se3``)."""
-    steps = torch.zeros(12, 6, dtype=torch.float64)
-    for axis in range(6):
-        size = translation if axis < 3 else rotation
-        steps[2 * axis, axis], steps[2 * axis + 1, axis] = size, -size
-    return steps if translation > 0 else steps[6:]
-
-
 def _climb(
     score: EdgeAlignment,
     sigma: float,
@@ -75,7 +66,8 @@ def _climb(
     smallest, moves = rotation / 4, 0
     while rotation >= smallest and moves < config.max_iterations:
         moves += 1
-        candidates = se3_exp(_steps(rotation, translation)) @ T
+        steps = twist_steps(rotation, translation)
+        candidates = se3_exp(steps if translation > 0 else steps[6:]) @ T  # rotation only at 0
         values = score(candidates, sigma)
         offset = (torch.linalg.inv(T_start) @ candidates)[:, :3, 3].norm(dim=1)
         values = torch.where(offset > config.max_translation_m, -1.0, values)

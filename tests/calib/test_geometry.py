@@ -16,6 +16,7 @@ from calib.geometry import (
     se3_exp,
     se3_inverse,
     se3_log,
+    twist_steps,
 )
 
 twists = st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6).map(
@@ -139,3 +140,13 @@ def test_random_perturbation_batch_and_seed():
     torch.testing.assert_close(a, b)
     with pytest.raises(ValueError, match="non-negative"):
         random_perturbation(-1.0, 0.0)
+
+
+def test_twist_steps_step_each_axis_both_ways():
+    steps = twist_steps(0.1, 2.0)
+    assert steps.shape == (12, 6) and steps.dtype == torch.float64
+    expected = torch.zeros(12, 6, dtype=torch.float64)
+    for axis, size in enumerate([2.0] * 3 + [0.1] * 3):
+        expected[2 * axis, axis], expected[2 * axis + 1, axis] = size, -size
+    assert torch.equal(steps, expected)
+    assert torch.count_nonzero(steps[6:, :3]) == 0 and torch.count_nonzero(steps[:6, 3:]) == 0
