@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 from results_io import save_results
 
-from calib.data.types import Frame, Sequence
+from calib.data.types import MemorySequence
 from calib.geometry import calibration_error
 from calib.init.degeneracy import DegenerateMotionError, check_motion
 from calib.init.hand_eye import UnobservableError
@@ -43,24 +43,6 @@ DRIVES = {  # frame counts, and the range of the distance driven before the firs
     "vineyard": ((40, 80, 120), (0.0, 8.0)),
     "urban": ((40, 60), (0.0, 30.0)),
 }
-
-
-class FrameList(Sequence):
-    """Rendered frames as a :class:`Sequence` (no files)."""
-
-    def __init__(self, frames: list[Frame], synth: Synthesizer):
-        self._frames = frames
-        self.name = f"synthetic {synth.config.world} seed {synth.seed}"
-        self.layout = "synthetic"
-        self.calibration = synth.calibration
-        self.timestamps = np.array([f.timestamp for f in frames])
-        self.notes, self.problems = [], []
-
-    def __len__(self) -> int:
-        return len(self._frames)
-
-    def frame(self, i: int) -> Frame:
-        return self._frames[i]
 
 
 def drive_of(world: str, seed: int) -> tuple[int, float]:
@@ -82,7 +64,12 @@ def run(world: str, seed: int, max_rotation_deg: float, pairs: Path | None = Non
     synth = Synthesizer(
         load_synth_config(world, small=True, drive={"start_before_turn_m": before_turn}), frames, seed=seed
     )
-    sequence = FrameList([item.frame for item in synth.frames()], synth)
+    sequence = MemorySequence(
+        [item.frame for item in synth.frames()],
+        synth.calibration,
+        f"synthetic {synth.config.world} seed {synth.seed}",
+        layout="synthetic",
+    )
     row = {"world": world, "seed": seed, "frames": frames, "start_before_turn_m": before_turn}
     row["synth_s"] = time.perf_counter() - start
     start = time.perf_counter()

@@ -16,7 +16,7 @@ from calib.data.extrinsic_file import rigid_problem
 from calib.data.io import read_image, read_label, read_label_image, read_point_times, read_scan
 from calib.errors import DataError
 
-__all__ = ["Calibration", "FileSequence", "Frame", "Sequence", "shift_from_projection"]
+__all__ = ["Calibration", "FileSequence", "Frame", "MemorySequence", "Sequence", "shift_from_projection"]
 
 
 @dataclass(frozen=True)
@@ -278,6 +278,27 @@ def pair_by_stem(
             f"({len(paired)} pairs with matching names)"
         )
     return [a for a, _ in paired], [b for _, b in paired], problems
+
+
+class MemorySequence(Sequence):
+    """Frames already in memory as a :class:`Sequence` (rendered synthetic frames, no files).
+
+    Args:
+        frames: the frames, in time order (their ``timestamp`` become :attr:`timestamps`).
+        calibration: one for all frames.
+        name: for reports.
+    """
+
+    def __init__(self, frames: list[Frame], calibration: Calibration, name: str, layout: str = "memory"):
+        self._frames, self.calibration, self.name, self.layout = list(frames), calibration, name, layout
+        self.timestamps = np.array([f.timestamp for f in self._frames])
+        self.notes, self.problems = [], []
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def frame(self, i: int) -> Frame:
+        return self._frames[i]
 
 
 class FileSequence(Sequence):

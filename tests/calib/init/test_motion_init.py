@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import calib.init.motion_init as motion_init
-from calib.data.types import Calibration, Frame, Sequence
+from calib.data.types import Calibration, Frame, MemorySequence
 from calib.geometry import calibration_error
 from calib.init.degeneracy import DegenerateMotionError, check_motion
 from calib.init.motion_init import initial_calibration, load_stage1_config
@@ -18,28 +18,13 @@ LITE_LIDAR = {
 }  # a quarter of the points: KISS-ICP and the ray caster 4x faster
 
 
-class FrameList(Sequence):
-    """Frames in memory as a :class:`Sequence`."""
-
-    def __init__(self, frames: list[Frame], calibration: Calibration, name: str):
-        self._frames, self.calibration, self.name, self.layout = frames, calibration, name, "memory"
-        self.timestamps = np.array([f.timestamp for f in frames])
-        self.notes, self.problems = [], []
-
-    def __len__(self) -> int:
-        return len(self._frames)
-
-    def frame(self, i: int) -> Frame:
-        return self._frames[i]
-
-
-def _synthetic(world: str, frames: int, before_turn_m: float, seed: int) -> tuple[FrameList, np.ndarray]:
+def _synthetic(world: str, frames: int, before_turn_m: float, seed: int) -> tuple[MemorySequence, np.ndarray]:
     config = load_synth_config(
         world, small=True, drive={"start_before_turn_m": before_turn_m}, lidar=LITE_LIDAR
     )
     synth = Synthesizer(config, frames, seed=seed)
     rendered = [item.frame for item in synth.frames()]
-    return FrameList(rendered, synth.calibration, f"{world} seed {seed}"), synth.T_cam_lidar
+    return MemorySequence(rendered, synth.calibration, f"{world} seed {seed}"), synth.T_cam_lidar
 
 
 def _rotation_deg(T: np.ndarray, T_ref: np.ndarray) -> float:
@@ -67,7 +52,7 @@ def test_an_arc_from_the_odometry_is_refused_or_reported_when_asked(monkeypatch)
         motions.append(CameraMotion(i, i + 1, A, 100, 20.0))
     monkeypatch.setattr(motion_init, "lidar_odometry", lambda *args, **kwargs: np.linalg.inv(P[0]) @ P)
     monkeypatch.setattr(motion_init, "visual_odometry", lambda *args, **kwargs: motions)
-    sequence = FrameList(frames, calibration, "arc")
+    sequence = MemorySequence(frames, calibration, "arc")
     with pytest.raises(
         DegenerateMotionError, match=r"^arc: Stage 1 refuses the rotation from this motion: "
     ) as e:
