@@ -14,22 +14,12 @@ from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import AMZ_DRIVE, AMZ_DRIVE_MORE
 from calib.errors import DataError, NumericalError
 from calib.geometry import calibration_error, perturb
-from calib.synth.generate import Synthesizer
-from calib.synth.synth_config import load_synth_config
 from calib.verify import (
     AXES,
     CHECK_SCHEMA_VERSION,
     CheckConfig,
     check_extrinsic,
 )
-
-STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}}
-
-
-@pytest.fixture(scope="module")
-def urban() -> list[Frame]:
-    synth = Synthesizer(load_synth_config("urban", small=True, **STILL), 2, seed=5)
-    return [synth.render(i).frame for i in range(2)]
 
 
 def _strict(text: str) -> dict:
@@ -39,9 +29,9 @@ def _strict(text: str) -> dict:
     return json.loads(text, parse_constant=refuse)
 
 
-def test_reference_is_good_and_its_result_is_strict_json(urban):
-    T = urban[0].calibration.T_cam_lidar
-    result = check_extrinsic(urban, T)
+def test_reference_is_good_and_its_result_is_strict_json(small_urban):
+    T = small_urban[0].calibration.T_cam_lidar
+    result = check_extrinsic(small_urban, T)
     assert result.verdict == "good" and result.exit_code == 0
     assert result.correction.rotation_deg < 0.5
     assert result.alignment > 0.95
@@ -57,34 +47,34 @@ def test_reference_is_good_and_its_result_is_strict_json(urban):
 
 
 @pytest.mark.parametrize("draw", [1, 2, 3])
-def test_two_degrees_off_is_bad(urban, draw):
-    T_ref = urban[0].calibration.T_cam_lidar
+def test_two_degrees_off_is_bad(small_urban, draw):
+    T_ref = small_urban[0].calibration.T_cam_lidar
     T = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(draw))
-    result = check_extrinsic(urban, T)
+    result = check_extrinsic(small_urban, T)
     assert result.verdict == "bad" and result.exit_code == 1
     assert result.significance["joint"] >= CheckConfig().m_bad
     assert result.correction.rotation_deg > CheckConfig().rotation_tolerance_deg and result.alignment < 0.9
 
 
 @pytest.mark.parametrize("draw", [1, 2])
-def test_one_degree_off_is_bad_and_the_suggestion_comes_back(urban, draw):
-    T_ref = urban[0].calibration.T_cam_lidar
+def test_one_degree_off_is_bad_and_the_suggestion_comes_back(small_urban, draw):
+    T_ref = small_urban[0].calibration.T_cam_lidar
     T = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(draw))
-    result = check_extrinsic(urban, T)
+    result = check_extrinsic(small_urban, T)
     assert result.verdict == "bad"
     assert calibration_error(result.suggested_T_cam_lidar, T_ref).rotation_deg < 0.4
 
 
-def test_refusals(urban):
-    T = urban[0].calibration.T_cam_lidar.copy()
+def test_refusals(small_urban):
+    T = small_urban[0].calibration.T_cam_lidar.copy()
     T[0, 0] = 2.0
     with pytest.raises(DataError, match="extrinsic"):
-        check_extrinsic(urban, T)
+        check_extrinsic(small_urban, T)
     with pytest.raises(ValueError, match="m_good"):
         CheckConfig(m_good=6.0, m_bad=5.0)
-    empty = [Frame(urban[0].image, urban[0].points[:10], urban[0].calibration)]
+    empty = [Frame(small_urban[0].image, small_urban[0].points[:10], small_urban[0].calibration)]
     with pytest.raises(NumericalError, match="too few contour samples"):
-        check_extrinsic(empty, urban[0].calibration.T_cam_lidar)
+        check_extrinsic(empty, small_urban[0].calibration.T_cam_lidar)
 
 
 @pytest.mark.realdata

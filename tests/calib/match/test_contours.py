@@ -9,21 +9,11 @@ import torch
 
 from calib.data import Frame
 from calib.match.contours import ContourConfig, ContourScore, horizontal_edges, vertical_edges
-from calib.synth.generate import Synthesizer
-from calib.synth.synth_config import load_synth_config
-
-STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}}
 
 
-@pytest.fixture(scope="module")
-def urban() -> list[Frame]:
-    synth = Synthesizer(load_synth_config("urban", small=True, **STILL), 2, seed=5)
-    return [synth.render(i).frame for i in range(2)]
-
-
-def test_contour_score_shapes(urban):
-    T = urban[0].calibration.T_cam_lidar
-    score = ContourScore(urban, T)
+def test_contour_score_shapes(small_urban):
+    T = small_urban[0].calibration.T_cam_lidar
+    score = ContourScore(small_urban, T)
     sigma = score.sigma_px(0.25)
     Ts = torch.as_tensor(np.stack([T, T, T]))
     values = score.values(Ts, sigma)
@@ -61,9 +51,9 @@ def test_contours_of_a_box_in_front_of_a_wall():
     assert np.allclose(tops[:, 2] / tops[:, 0] * 10.0, 0.5, atol=0.05)  # the top at z = 0.5 m
 
 
-def test_too_few_samples_are_refused(urban):
+def test_too_few_samples_are_refused(small_urban):
     from calib.errors import NumericalError
 
-    empty = [Frame(urban[0].image, urban[0].points[:10], urban[0].calibration)]
+    empty = [Frame(small_urban[0].image, small_urban[0].points[:10], small_urban[0].calibration)]
     with pytest.raises(NumericalError, match="too few contour samples"):
-        ContourScore(empty, urban[0].calibration.T_cam_lidar, ContourConfig())
+        ContourScore(empty, small_urban[0].calibration.T_cam_lidar, ContourConfig())
