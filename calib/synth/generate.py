@@ -28,6 +28,8 @@ from calib.synth.world import World
 __all__ = ["SyntheticFrame", "Synthesizer", "reference_extrinsic", "write_sequence"]
 
 RIGID_CLASSES = {10, 50, 51, 52, 71, 80, 81, 99}
+EFFECTS_STREAM = 1
+"""Third seed word of each frame's camera-effects generator (the frame's own is ``[seed, i]``)."""
 MAX_FRAMES = 100_000
 """At most this many frames (about 3 h at 10 Hz): the world grows with the distance driven."""
 MAX_DRIFT = (100.0, 45.0)
@@ -104,7 +106,7 @@ class Synthesizer:
             source=f"synthetic {config.world} seed {seed}",
         )
         self._static: Raycaster | None = None
-        self.camera = Camera(config.camera, config.light, seed)
+        self.camera = Camera(config.camera, config.light, config.camera_effects, seed)
         self.lidar = Lidar(config.lidar, config.timing.lidar_period_s, seed)
 
     @property
@@ -133,7 +135,10 @@ class Synthesizer:
         drive = self.world.drive
         T_world_cam = drive.lidar_poses(np.array([t_cam]))[0] @ np.linalg.inv(self.extrinsic(i))
         image, image_labels = self.camera.render(
-            self.static.plus(self.world.dynamic(t_cam, wind)), T_world_cam, rng
+            self.static.plus(self.world.dynamic(t_cam, wind)),
+            T_world_cam,
+            rng,
+            np.random.default_rng([self.seed, i, EFFECTS_STREAM]),
         )
         T_stamp = drive.lidar_poses(np.array([t_lidar]))[0]
         # With motion distortion each azimuth column is cast from the pose at its own time

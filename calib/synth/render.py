@@ -7,10 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.synth.camera_effects import compress, expose
 from calib.synth.materials import sky, surface, to_srgb
 from calib.synth.raycast import Raycaster
 from calib.synth.sensors import CameraConfig, LidarConfig, camera_rays, lidar_rays
-from calib.synth.synth_config import LightConfig
+from calib.synth.synth_config import CameraEffectsConfig, LightConfig
 
 __all__ = ["Camera", "Lidar", "LidarScan", "sun_direction"]
 
@@ -22,18 +23,35 @@ def sun_direction(light: LightConfig) -> np.ndarray:
 
 
 class Camera:
-    """Renders what a pinhole camera sees: sun and sky light, cast shadows, image noise."""
+    """Renders what a pinhole camera sees: sun and sky light, cast shadows, then the camera's own
+    effects (blur, vignetting, exposure, noise, JPEG; :mod:`calib.synth.camera_effects`)."""
 
-    def __init__(self, config: CameraConfig, light: LightConfig, seed: int = 0):
-        self.config, self.light, self.seed = config, light, seed
+    def __init__(
+        self,
+        config: CameraConfig,
+        light: LightConfig,
+        effects: CameraEffectsConfig,
+        seed: int = 0,
+    ):
+        self.config, self.light, self.seed, self.effects = config, light, seed, effects
         self._rays = camera_rays(config)
         self._sun = sun_direction(light)
 
     def render(
-        self, caster: Raycaster, T_world_cam: np.ndarray, rng: np.random.Generator
+        self,
+        caster: Raycaster,
+        T_world_cam: np.ndarray,
+        rng: np.random.Generator,
+        effects_rng: np.random.Generator,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Returns ``image (H, W, 3)`` uint8 RGB and ``labels (H, W)`` uint16 class per pixel
-        (0 where the ray escapes to the sky)."""
+        (0 where the ray escapes to the sky).
+
+        Args:
+            rng: the frame's generator, shared with the LiDAR (draws the read noise).
+            effects_rng: a generator of the camera effects alone, so switching an effect on or
+                off leaves the scan and the rest of the image as they were.
+        """
         H, W = self.config.height, self.config.width
         directions = self._rays @ T_world_cam[:3, :3].T
         origin = T_world_cam[:3, 3]
@@ -50,8 +68,10 @@ class Camera:
         lit[facing] = ~caster.occluded(points[facing] + 0.01 * normal[facing], self._sun)
         sky_light = self.light.ambient * (0.75 + 0.25 * normal[:, 2])
         rgb[hit] = color * (sky_light + self.light.sun * np.where(lit, cos_sun, 0.0))[:, None]
+        rgb = expose(rgb.reshape(H, W, 3), self.effects, effects_rng)
+        # read noise, after the exposure gain: a dark frame's contrast drowns in it
         rgb += rng.normal(0.0, self.light.image_noise, rgb.shape).astype(np.float32)
-        return to_srgb(rgb).reshape(H, W, 3), hits.label.reshape(H, W)
+        return compress(to_srgb(rgb), self.effects.jpeg_quality), hits.label.reshape(H, W)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from calib.errors import ConfigError
 from calib.synth.sensors import CameraConfig, LidarConfig
 from calib.yaml_io import DEFAULTS, read_yaml, validate
 
-__all__ = ["SMALL_CAMERA", "SynthConfig", "load_synth_config"]
+__all__ = ["SMALL_CAMERA", "CameraEffectsConfig", "SynthConfig", "load_synth_config"]
 
 SMALL_CAMERA = {"width": 624, "height": 188, "fx": 360.8, "fy": 360.8, "cx": 304.8, "cy": 86.4}
 """The small camera (KITTI's colour camera at about half resolution) that ``small=True`` and
@@ -48,6 +48,26 @@ class LightConfig(_Strict):
     sun: float = Field(1.0, ge=0)
     ambient: float = Field(0.35, ge=0)
     image_noise: float = Field(0.008, ge=0, description="std of additive noise, linear units")
+
+
+class CameraEffectsConfig(_Strict):
+    """What a real camera does to the scene's light before the image reaches the matcher (see
+    :mod:`calib.synth.camera_effects`). The defaults do nothing: every effect at zero strength
+    leaves the rendered bytes as they were without this group."""
+
+    blur_px: float = Field(0.0, ge=0, le=10, description="lens blur (defocus, optics), Gaussian σ in pixels")
+    vignetting: float = Field(
+        0.0, ge=0, lt=1, description="light lost at the image corners (corner gain 1 − vignetting)"
+    )
+    exposure_std_stops: float = Field(
+        0.0, ge=0, le=3, description="std of the per-frame exposure error, in stops (log2 of the gain)"
+    )
+    shot_noise: float = Field(
+        0.0, ge=0, le=0.1, description="photon noise: variance per unit of linear signal (std √(k · x))"
+    )
+    jpeg_quality: int | None = Field(
+        None, ge=1, le=100, description="JPEG-compress the 8-bit image at this quality; null: no compression"
+    )
 
 
 class ExtrinsicConfig(_Strict):
@@ -114,6 +134,7 @@ class SynthConfig(_Strict):
     timing: TimingConfig = TimingConfig()
     wind: WindConfig = WindConfig()
     light: LightConfig = LightConfig()
+    camera_effects: CameraEffectsConfig = CameraEffectsConfig()
     extrinsic: ExtrinsicConfig = ExtrinsicConfig()
     drive: DriveConfig = DriveConfig()
     terrain: TerrainConfig = TerrainConfig()
@@ -133,8 +154,11 @@ def load_synth_config(
     vineyard at the BLT ZED2's half resolution 960x540 (f = 527).
 
     Args:
-        small: render with :data:`SMALL_CAMERA` (624x188) instead of the file's camera; applied
-            before ``overrides``, so a ``camera`` override still wins.
+        small: render with :data:`SMALL_CAMERA` (624x188) instead of the file's camera, and
+            without the file's ``camera_effects`` and scan motion distortion (the shipped
+            models were trained on clean small frames, the fast tests pin the matcher's
+            accuracy on them, and the effects' strengths are tuned at real pixel scale); applied
+            before ``overrides``, so a ``camera`` or ``camera_effects`` override still wins.
         overrides: top-level groups to replace, as dicts merged over the file's (e.g.
             ``wind={"amplitude_m": 0}``).
 
@@ -151,6 +175,8 @@ def load_synth_config(
         raise ConfigError(path, f"describes world {data['world']!r}, not {world!r}")
     if small:
         data["camera"] = dict(SMALL_CAMERA)
+        data.pop("camera_effects", None)
+        data["timing"] = {**data.get("timing", {}), "motion_distortion": False}
     for key, value in overrides.items():
         data[key] = {**data.get(key, {}), **value}
     return validate(SynthConfig, data, path)

@@ -1,5 +1,6 @@
 """The synthetic worlds render at real pixel scale by default (urban: KITTI's colour camera 02,
-vineyard: BLT's ZED2 at half resolution); ``small=True`` keeps the old 624x188 camera for speed."""
+vineyard: BLT's ZED2 at half resolution); ``small=True`` keeps the old 624x188 camera for speed,
+without the camera effects."""
 
 import numpy as np
 import pytest
@@ -7,7 +8,7 @@ import pytest
 from calib.data.label_agreement import sequence_label_agreement
 from calib.projection import project_scan
 from calib.synth.generate import RIGID_CLASSES, Synthesizer
-from calib.synth.synth_config import SMALL_CAMERA, load_synth_config
+from calib.synth.synth_config import SMALL_CAMERA, CameraEffectsConfig, load_synth_config
 
 FULL = {
     "urban": {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9},
@@ -22,10 +23,16 @@ def test_the_default_camera_is_full_resolution(world):
 
 
 @pytest.mark.parametrize("world", ["urban", "vineyard"])
-def test_small_gives_the_old_camera_and_leaves_the_rest(world):
+def test_small_gives_the_old_camera_without_effects_and_leaves_the_rest(world):
     small, full = load_synth_config(world, small=True), load_synth_config(world)
     assert small.camera.model_dump() == SMALL_CAMERA
-    assert small.model_dump(exclude={"camera"}) == full.model_dump(exclude={"camera"})
+    assert small.camera_effects == CameraEffectsConfig() != full.camera_effects
+    assert not small.timing.motion_distortion
+    assert full.timing.motion_distortion == (world == "urban")  # KITTI's scans are not de-skewed
+    exclude = {"camera": True, "camera_effects": True, "timing": {"motion_distortion"}}
+    assert small.model_dump(exclude=exclude) == full.model_dump(exclude=exclude)
+    blurred = load_synth_config(world, small=True, camera_effects={"blur_px": 0.5})
+    assert blurred.camera_effects.blur_px == 0.5
 
 
 def test_a_camera_override_wins_over_small():
