@@ -9,8 +9,15 @@ from calib.data.real_fixtures import AMZ_DRIVE
 from calib.errors import DataError
 from calib.geometry import perturb
 from calib.match.correspondences import Correspondences
-from calib.match.edge_matcher import EdgeMatcher, EdgeMatcherConfig, _box, _depth_model_fit
-from calib.projection import project_points, transform_points
+from calib.match.edge_matcher import (
+    EdgeMatcher,
+    EdgeMatcherConfig,
+    _box,
+    _depth_model_fit,
+    lidar_edges,
+    lidar_field,
+)
+from calib.projection import Visibility, project_points, project_scan, transform_points
 from calib.synth.generate import RIGID_CLASSES, Synthesizer
 from calib.synth.synth_config import load_synth_config
 from calib.yaml_io import validate
@@ -108,3 +115,43 @@ def test_real_kitti_residuals_point_back_toward_the_reference(realdata):
     assert np.median(np.linalg.norm(corr.residual - truth, axis=1)) < 0.6 * np.median(
         np.linalg.norm(truth, axis=1)
     )
+
+
+def _board_scan() -> np.ndarray:
+    """A LiDAR scan (x forward, y left, z up) of a 1 m wide board 5 m ahead (y in ±0.5 m, z in
+    ±2 m) in front of a wall 20 m ahead: each ray's first hit."""
+    azimuth, elevation = np.meshgrid(np.radians(np.arange(-30, 30, 0.2)), np.radians(np.arange(-8, 5, 0.4)))
+    d = np.stack(
+        [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], -1
+    )
+    d = d.reshape(-1, 3)
+    t_board = 5.0 / d[:, 0]
+    on_board = (np.abs(d[:, 1] * t_board) < 0.5) & (np.abs(d[:, 2] * t_board) < 2.0)
+    t = np.where(on_board, t_board, 20.0 / d[:, 0])
+    return np.column_stack([d * t[:, None], np.ones(len(d))]).astype(np.float32)
+
+
+def test_lidar_field_has_no_parallax_halo():
+    # camera 27 cm ahead of and 30 cm left of the LiDAR: the parallax opens a strip of wall left
+    # of the board that the camera sees and the LiDAR does not (about 15 px here)
+    R = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ np.array([0.27, 0.3, 0.0])
+    K = np.array([[360.0, 0, 320], [0, 360, 100], [0, 0, 1]])
+    points = _board_scan()
+    edge_u = 320 + 360 * (-(0.5 - 0.3) / (5 - 0.27))  # the board's left edge in the camera
+    u = np.arange(640, dtype=float)
+    near, strip = np.abs(u - edge_u) < 3, (u > edge_u - 25) & (u < edge_u - 3)
+
+    def profile(field: np.ndarray) -> np.ndarray:
+        return np.abs(field[:, 90:110]).sum((0, 1))  # rows across the board's middle
+
+    field, _ = lidar_field(points, T, K, (200, 640))
+    new = profile(field)
+    assert abs((new * u)[near].sum() / new[near].sum() - edge_u) < 1.0
+    assert new[strip].max() < 0.05 * new[near].max()
+    # drawn in the camera, the strip's far border is an edge of its own, where the image has none
+    scan = project_scan(points, T, K, (200, 640), Visibility(window=3))
+    old = profile(lidar_edges(scan, points, T, K)[0])
+    assert old[strip].max() > 0.5 * old[near].max()
