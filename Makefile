@@ -32,6 +32,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_flow_matcher.py
 	$(PY) benchmarks/bench_accuracy.py
 	$(PY) benchmarks/bench_check.py
+	$(PY) benchmarks/bench_realism.py
 	$(PY) benchmarks/bench_real.py
 	$(PY) benchmarks/bench_stage1.py
 	$(PY) benchmarks/report.py

@@ -212,8 +212,9 @@ def real_data() -> list[str]:
         "### Real data",
         "",
         f"Calibration from starts of random direction, {draw} each size (Stages 2–4, uniform support, "
-        f"edge matcher; dense: the packaged config; global, contour: with the experimental global coarse "
-        "stage and contour refinement switched on before the dense passes). "
+        "edge matcher; global+dense: the packaged config, whose dense passes go on from the global "
+        "coarse stage's answer only when their first pass ends better aligned there; dense: the "
+        "global coarse stage off; contour: the experimental contour refinement switched on). "
         f"Success: within {multi[0]:g} cm and {multi[1]:g}° of the reference for several frames, "
         f"{single[0]:g} cm and {single[1]:g}° for one; a run that raises fails. Final errors: median "
         "/ 90th percentile of the runs that returned; seconds: median per calibration.",
@@ -249,6 +250,40 @@ def real_data() -> list[str]:
     for name, note in result.get("notes", {}).items():
         lines += ["", f"{name}: {note}."]
     return lines
+
+
+def realism() -> list[str]:
+    """The matcher's endpoint error under the reference, real fixtures beside full-resolution
+    synthetic frames (``bench_realism.json``)."""
+    result = _load("bench_realism")
+    if result is None:
+        return ["### Synthetic against real frames", "", "(benchmarks/bench_realism.py has not run)"]
+    lines = [
+        "### Synthetic against real frames",
+        "",
+        "The EdgeMatcher's endpoint error under the reference extrinsic (full-resolution pixels and "
+        "milliradians; median / mean / 90th percentile over the correspondences). Ratio: the real KITTI "
+        f"median over the synthetic one; the goal is at most {result['target_ratio']:g}.",
+        "",
+    ]
+    rows = []
+    for part in ("real", "synthetic"):
+        for name, row in result[part].items():
+            px, mrad = row["px"], row["mrad"]
+            ratio = row.get("ratio")
+            rows.append(
+                [
+                    name,
+                    row["size"],
+                    str(row["correspondences"]),
+                    f"{px['median']:.2f} / {px['mean']:.2f} / {px['p90']:.2f}"
+                    if px["median"] is not None
+                    else "–",
+                    f"{mrad['median']:.2f}" if mrad["median"] is not None else "–",
+                    f"{ratio:.2f}" if ratio is not None else "",
+                ]
+            )
+    return lines + _table(["dataset", "size", "correspondences", "px", "mrad median", "ratio"], rows)
 
 
 def check() -> list[str]:
@@ -319,14 +354,14 @@ def main() -> None:
     parser.add_argument(
         "--only",
         default=None,
-        help="comma-separated sections (real, check) to replace in the README, keeping the others as "
-        "they are (for a benchmark run on its own)",
+        help="comma-separated sections (real, check, realism) to replace in the README, keeping the others "
+        "as they are (for a benchmark run on its own)",
     )
     args = parser.parse_args()
     if args.only is not None:
         if args.readme is None:
             raise SystemExit("report.py: --only needs --readme")
-        pick = {"real": real_data, "check": check}
+        pick = {"real": real_data, "check": check, "realism": realism}
         if bad := [name for name in args.only.split(",") if name not in pick]:
             raise SystemExit(f"report.py: unknown section(s) {', '.join(bad)}; choose from {', '.join(pick)}")
         readme = args.readme.read_text()
@@ -347,6 +382,8 @@ def main() -> None:
         *accuracy(),
         *matchers(),
         *hand_eye(),
+        "",
+        *realism(),
         "",
         *real_data(),
         "",

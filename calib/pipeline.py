@@ -26,6 +26,7 @@ from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
 from calib.observability import weak_directions
 from calib.refine.contour_refine import contour_refine
+from calib.refine.frame_selection import contour_information, select_informative
 from calib.refine.global_search import global_search
 from calib.refine.passes import CalibrateConfig, load_calibrate_config, refine_passes
 from calib.refine.tracking import OnlineState, departure, extrinsic_of
@@ -80,6 +81,17 @@ class Calibrator:
         stage1 = self._stage1 if self._stage1 is not None else load_stage1_config()
         return initial_calibration(seq, stage1).T_cam_lidar
 
+    def _pick_frames(self, seq: Sequence | FrameList[Frame], T_init: np.ndarray) -> tuple[list[int], dict]:
+        """Positions of the frames Stage 4 uses (``config.selection``) and the frames loaded to
+        choose them, by position."""
+        count, selection = self.config.frames, self.config.selection
+        if selection.method == "spread" or len(seq) <= count:
+            return [int(i) for i in select_frames(len(seq), count)], {}
+        candidates = [int(i) for i in select_frames(len(seq), count * selection.candidates)]
+        loaded = {i: seq[i] for i in candidates}
+        informations = [contour_information(f.points, T_init, f.K, f.image_size) for f in loaded.values()]
+        return [candidates[j] for j in select_informative(informations, count)], loaded
+
     def calibrate(
         self,
         seq: Sequence | FrameList[Frame],
@@ -89,7 +101,8 @@ class Calibrator:
         """Calibrate ``seq`` (a :class:`Sequence` or a list of frames sharing one ``K``).
 
         Args:
-            seq: the data; ``config.frames`` frames spread over it are used.
+            seq: the data; ``config.frames`` of its frames are used (``config.selection``:
+                spread evenly, or the most informative of ``candidates`` times as many).
             T_init: ``(4, 4)`` initial ``T_cam_lidar``; ``None``: Stage 1 from motion.
             seed: of the correspondence sampling (an int or a tuple, as numpy seeds take).
         """
@@ -99,8 +112,8 @@ class Calibrator:
                 raise DataError("T_init", "Stage 1 needs a Sequence (with time stamps); give T_init")
             T_init = self.initial_extrinsic(seq)  # Stage 1
         T_init = _checked_extrinsic(T_init, "T_init")
-        picks = select_frames(len(seq), self.config.frames)
-        frames = [seq[int(i)] for i in picks]
+        picks, loaded = self._pick_frames(seq, T_init)
+        frames = [loaded[i] if i in loaded else seq[i] for i in picks]
         T_coarse, coarse = T_init, []
         if self.config.coarse.enabled:  # Stage 4, coarse: edge alignment where the matcher cannot reach
             search = global_search(frames, T_init, self.config.coarse)
@@ -108,9 +121,25 @@ class Calibrator:
         if self.config.contour.enabled:  # then the contour score over all six parameters at once
             climb = contour_refine(frames, T_coarse, self.config.contour)
             T_coarse, coarse = climb.T_cam_lidar, coarse + [{"stage": "contour", **x} for x in climb.levels]
+        coarse_ran = self.config.coarse.enabled or self.config.contour.enabled
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
-            frames, T_coarse, self.matcher, self.support, self.config, np.random.default_rng(seed)
+            frames,
+            T_init,
+            self.matcher,
+            self.support,
+            self.config,
+            np.random.default_rng(seed),
+            alternatives=[T_coarse] if coarse_ran else [],
         )
+        if coarse_ran:  # the passes went on from the start whose first pass ended better aligned
+            initial, from_coarse = passes.probe_alignments_px
+            coarse.append(
+                {
+                    "stage": "choice",
+                    "kept": "coarse" if passes.start else "initial",
+                    "alignment_after_first_pass_px": {"initial": initial, "coarse": from_coarse},
+                }
+            )
         covariance_t, covariance_r = passes.covariance[:3, :3], passes.covariance[3:, 3:]
         weak = weak_directions(
             covariance_t,

@@ -28,7 +28,9 @@ class GlobalSearchConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     enabled: bool = Field(
-        False, description="run the global coarse stage before the dense passes (experimental, see README)"
+        True,
+        description="run the global coarse stage before the dense passes (they go on from its answer "
+        "only when their first pass ends better aligned there than from the initial extrinsic)",
     )
     sigmas_px: tuple[PositiveFloat, ...] = Field(
         (32.0, 16.0, 8.0, 4.0), min_length=1, description="blur scales, coarse to fine (px at f = 721)"

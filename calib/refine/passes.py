@@ -4,23 +4,26 @@ matcher three times; each pass starts from the last estimate)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
+import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib.data.types import Frame
 from calib.errors import DataError
-from calib.geometry import calibration_error
-from calib.match.correspondences import Matcher
+from calib.geometry import calibration_error, se3_exp, se3_log
+from calib.match.correspondences import Correspondences, Matcher
 from calib.match.edge_matcher import EdgeMatcherConfig
 from calib.projection import pixel_lookup
 from calib.refine.contour_refine import ContourRefineConfig
+from calib.refine.frame_selection import FrameSelectionConfig
 from calib.refine.global_search import GlobalSearchConfig
+from calib.refine.outliers import OutlierConfig, frame_outliers, near_points, trim_points
 from calib.refine.sgis import support_sample, uniform_sample
-from calib.refine.solver import RefineConfig, refine_extrinsic
+from calib.refine.solver import RefineConfig, Refinement, refine_extrinsic
 from calib.refine.tracking import OnlineConfig
 from calib.support.source import SupportSource
 from calib.yaml_io import load_config
@@ -51,10 +54,27 @@ class CalibrateConfig(BaseModel):
     )
     sampling: SamplingConfig = SamplingConfig()
     refine: RefineConfig = RefineConfig()
-    frames: int = Field(10, ge=1, description="frames used, spread evenly over the sequence")
-    passes: int = Field(3, ge=1)
+    frames: int = Field(10, ge=1, description="frames used")
+    selection: FrameSelectionConfig = Field(FrameSelectionConfig(), description="which frames are used")
+    passes: int = Field(5, ge=1)
     min_update_cm: float = Field(0.01, ge=0, description="stop early when a pass moves less than this")
     min_update_deg: float = Field(0.001, ge=0)
+    check_passes: bool = Field(
+        True,
+        description="match once more after each pass; when the matcher's median residual did not "
+        "fall, go back half the pass's update (up to `halvings` times), then undo it and stop",
+    )
+    coarse_margin: float = Field(
+        0.75,
+        gt=0,
+        le=1,
+        description="the passes go on from the coarse stage's answer only when their first pass from "
+        "it ends with at most this times the median residual of their first pass from the initial extrinsic",
+    )
+    halvings: int = Field(
+        2, ge=0, description="how often a pass that did not help is halved before it is undone"
+    )
+    outliers: OutlierConfig = Field(OutlierConfig(), description="points, frames and matches left out")
     coarse: GlobalSearchConfig = Field(
         GlobalSearchConfig(), description="the global coarse stage before the dense passes (wide basin)"
     )
@@ -68,13 +88,18 @@ class CalibrateConfig(BaseModel):
 
 @dataclass(frozen=True)
 class PassesResult:
-    """``T_cam_lidar (4, 4)`` and ``covariance (6, 6)`` of the last pass; ``passes`` one dict per
-    pass (iterations, cost, correspondences, update); ``correspondences`` used in the last pass."""
+    """``T_cam_lidar (4, 4)`` and ``covariance (6, 6)`` of the last accepted pass; ``passes`` one
+    dict per pass (iterations, cost, correspondences, alignment, update, accepted);
+    ``correspondences`` used in the last accepted pass; ``start`` which start the passes took
+    (0: ``T_init``, then the alternatives) and ``probe_alignments_px`` the median residual after
+    the first pass from each (empty without alternatives)."""
 
     T_cam_lidar: np.ndarray
     covariance: np.ndarray
     passes: list[dict]
     correspondences: int
+    start: int = 0
+    probe_alignments_px: list[float] = field(default_factory=list)
 
 
 def draw(
@@ -90,6 +115,21 @@ def draw(
     return index, (s[index] + config.floor if config.weight_by_support else np.ones(len(index)))
 
 
+def _usable(corr: Correspondences, config: OutlierConfig) -> Correspondences:
+    """``corr`` without the points nearer the LiDAR than ``config.min_range_m`` (ego-vehicle)."""
+    return corr.subset(~near_points(corr.points_lidar, config.min_range_m))
+
+
+def _along(T_from: np.ndarray, T_to: np.ndarray, fraction: float) -> np.ndarray:
+    """``exp(fraction · log(T_to · T_from⁻¹)) · T_from``: that fraction of the way (on SE(3))."""
+    twist = se3_log(torch.as_tensor(T_to @ np.linalg.inv(T_from)))
+    return se3_exp(fraction * twist).numpy() @ T_from
+
+
+def _median_norm(residual: np.ndarray) -> float:
+    return float(np.median(np.linalg.norm(residual, axis=1))) if len(residual) else float("inf")
+
+
 def refine_passes(
     frames: Sequence[Frame],
     T_init: np.ndarray,
@@ -97,38 +137,111 @@ def refine_passes(
     support: SupportSource,
     config: CalibrateConfig,
     rng: np.random.Generator,
+    alternatives: Sequence[np.ndarray] = (),
 ) -> PassesResult:
-    """Refine ``T_init`` over ``frames`` (one shared ``K``) in up to ``config.passes`` passes."""
+    """Refine ``T_init`` over ``frames`` (one shared ``K``) in up to ``config.passes`` passes.
+
+    Each pass matches every frame under the current estimate, leaves out the frames whose median
+    residual is an outlier among the frames, draws each frame's correspondences (SGIS or uniform),
+    fits Eq. 4, drops the correspondences far off that fit and fits again. With
+    ``config.check_passes`` the matching that starts the next pass (one extra round after the
+    last) checks the pass: when the median residual the matcher measures under the new estimate
+    is not below the one under the previous estimate, the estimate goes back half the pass's
+    update and is checked again (``config.halvings`` times, a backtracking line search), and
+    after that the pass is undone and the passes stop.
+
+    ``alternatives`` are other starts (``(4, 4)`` each, a coarse stage's answer). The first pass
+    runs from each start, and the passes go on from the one whose first pass ends best aligned,
+    an alternative only when clearly so (``config.coarse_margin``: ``T_init`` is a prior):
+    far from the truth the matcher's residuals saturate at its search range, so the alignment of
+    a start itself cannot tell two bad starts apart, but one pass brings a start inside the
+    matcher's reach to a low median residual and leaves one outside it high.
+    """
     K = frames[0].K
     if any(not np.allclose(f.K, K) for f in frames):
         raise DataError("frames", "have different intrinsics and cannot share one refinement")
-    T, history = np.asarray(T_init, np.float64), []
-    for _ in range(config.passes):
+    rules = config.outliers
+
+    def matched_under(T: np.ndarray) -> tuple[list[Correspondences], float]:
+        matched = [_usable(matcher.match(frame, T), rules) for frame in frames]
+        return matched, _median_norm(np.concatenate([c.residual for c in matched]))
+
+    def one_pass(T: np.ndarray, matched: list[Correspondences], alignment: float) -> tuple[Refinement, dict]:
+        dropped = frame_outliers(
+            np.array([_median_norm(c.residual) for c in matched]), rules.frame_factor, rules.frame_floor_px
+        )
         points, targets, weights = [], [], []
-        for frame in frames:
-            corr = matcher.match(frame, T)
+        for frame, corr, drop in zip(frames, matched, dropped, strict=True):
+            if drop:
+                continue
             support_map = support(frame)
             values = None if support_map is None else pixel_lookup(support_map, corr.uv)
             index, w = draw(values, len(corr), config.sampling, rng)
             points.append(corr.points_lidar[index])
             targets.append(corr.uv_matched[index])
             weights.append(w)
+        points, targets, weights = (np.concatenate(x) for x in (points, targets, weights))
+        first = refine_extrinsic(points, targets, weights, K, T, config.refine)
+        keep = trim_points(np.linalg.norm(first.residuals, axis=1), rules.point_sigmas, rules.point_floor_px)
         result = refine_extrinsic(
-            np.concatenate(points), np.concatenate(targets), np.concatenate(weights), K, T, config.refine
+            points[keep], targets[keep], weights[keep], K, first.T_cam_lidar, config.refine
         )
-        update = calibration_error(result.T_cam_lidar, T)
-        T = result.T_cam_lidar
-        history.append(
-            {
-                "iterations": result.iterations,
-                "cost": result.cost,
-                "correspondences": int(sum(len(w) for w in weights)),
-                "update": update.to_dict(),
-            }
-        )
-        if update.translation_cm < config.min_update_cm and update.rotation_deg < config.min_update_deg:
+        entry = {
+            "iterations": first.iterations + result.iterations,
+            "cost": result.cost,
+            "correspondences": int(keep.sum()),
+            "trimmed": int((~keep).sum()),
+            "frames_left_out": [int(i) for i in np.flatnonzero(dropped)],
+            "alignment_px": alignment,
+            "accepted": True,
+            "step": 1.0,
+            "update": calibration_error(result.T_cam_lidar, T).to_dict(),
+        }
+        return result, entry
+
+    starts = [np.asarray(T, np.float64) for T in (T_init, *alternatives)]
+    T, T_before, history, fits, pending, chosen, probes = starts[0], None, [], [], None, 0, []
+    if len(starts) > 1:
+        for T_start in starts:
+            result, entry = one_pass(T_start, *matched_under(T_start))
+            probes.append((T_start, result, entry, matched_under(result.T_cam_lidar)))
+        # the initial extrinsic (the user's, or Stage 1's) is a prior: another start must end its
+        # first pass clearly better aligned (median residual at most `clearly` times the initial's)
+        after = np.array([probe[3][1] for probe in probes])
+        best = int(np.argmin(after[1:])) + 1
+        chosen = best if after[best] <= config.coarse_margin * after[0] else 0
+        T_before, result, entry, pending = probes[chosen]
+        T, history, fits = result.T_cam_lidar, [entry], [(result.covariance, entry["correspondences"])]
+    while not (len(history) == config.passes and not config.check_passes):
+        matched, alignment = pending if pending is not None else matched_under(T)
+        pending = None
+        if history:  # this matching checks the last pass
+            last = history[-1]
+            last["alignment_after_px"] = alignment
+            if config.check_passes and not alignment < last["alignment_px"]:
+                if last["step"] > 0.5**config.halvings:  # back along the pass's update, half way
+                    last["step"] /= 2
+                    T = _along(T_before, T, 0.5)
+                    last["update"] = calibration_error(T, T_before).to_dict()
+                    continue
+                last["accepted"] = False
+                T = T_before
+                break
+            update = history[-1]["update"]
+            if (
+                update["translation_cm"] < config.min_update_cm
+                and update["rotation_deg"] < config.min_update_deg
+            ):
+                break  # settled: the estimate hardly moved
+        if len(history) == config.passes:
             break
-    return PassesResult(T, result.covariance, history, history[-1]["correspondences"])
+        result, entry = one_pass(T, matched, alignment)
+        history.append(entry)
+        fits.append((result.covariance, entry["correspondences"]))
+        T_before, T = T, result.T_cam_lidar
+    accepted = [fit for fit, step in zip(fits, history, strict=True) if step["accepted"]] or fits
+    covariance, correspondences = accepted[-1]
+    return PassesResult(T, covariance, history, correspondences, chosen, [after[1] for *_, after in probes])
 
 
 def load_calibrate_config(path: Path | None = None) -> CalibrateConfig:

@@ -44,6 +44,7 @@ class Refinement:
             final normal equations scaled by the residual variance.
         iterations: accepted and rejected LM steps taken. cost, initial_cost: the objective.
         converged: the step fell below the tolerance before ``max_iterations``.
+        residuals: ``(N, 2)`` pixels ``π(K, T p_i) − ũ_i`` at the estimate.
     """
 
     T_cam_lidar: np.ndarray
@@ -52,6 +53,7 @@ class Refinement:
     cost: float
     initial_cost: float
     converged: bool
+    residuals: np.ndarray
 
 
 def robust_weight(r2: torch.Tensor, loss: str, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -186,4 +188,4 @@ def refine_extrinsic(
     H = torch.einsum("n,nai,naj->ij", w, J, J)
     dof = max(2 * used - 6, 1)
     covariance = torch.linalg.pinv(H) * float((w * (r * r).sum(1)).sum() / dof)
-    return Refinement(T.numpy(), covariance.numpy(), iterations, cost, initial_cost, converged)
+    return Refinement(T.numpy(), covariance.numpy(), iterations, cost, initial_cost, converged, r.numpy())

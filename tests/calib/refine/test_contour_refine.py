@@ -68,10 +68,15 @@ def test_global_search_only_raises_the_score(urban):
 def test_the_calibrator_records_both_coarse_stages(urban):
     T_ref = urban[0].calibration.T_cam_lidar
     T_init = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(4))
-    config = CalibrateConfig(frames=3, passes=1, contour={"enabled": True, "sigmas_deg": (1.0, 0.5)})
+    config = CalibrateConfig(
+        frames=3, passes=1, coarse={"enabled": False}, contour={"enabled": True, "sigmas_deg": (1.0, 0.5)}
+    )
     result = Calibrator(config=config).calibrate(urban, T_init)
-    assert [level["stage"] for level in result.coarse] == ["contour", "contour"]
-    assert all(level["score_after"] >= level["score_before"] for level in result.coarse)
+    assert [level["stage"] for level in result.coarse] == ["contour", "contour", "choice"]
+    assert all(level["score_after"] >= level["score_before"] for level in result.coarse[:2])
+    choice = result.coarse[2]  # the passes went on from the better-aligned of the two starts
+    after = choice["alignment_after_first_pass_px"]
+    assert choice["kept"] == min(after, key=after.get)
     assert len(result.passes) == 1
 
 

@@ -32,9 +32,7 @@ def test_jacobian_matches_autograd_in_float64():
         return project_points(transform_points(se3_exp(delta), points), K)[0]
 
     auto = torch.autograd.functional.jacobian(f, torch.zeros(6, dtype=torch.float64))  # (N, 2, 6)
-    np.testing.assert_allclose(
-        reprojection_jacobian(points, K).numpy(), auto.numpy(), rtol=1e-9, atol=1e-9
-    )
+    np.testing.assert_allclose(reprojection_jacobian(points, K).numpy(), auto.numpy(), rtol=1e-9, atol=1e-9)
 
 
 def test_robust_weights_are_the_loss_derivative():

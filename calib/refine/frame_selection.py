@@ -1,0 +1,84 @@
+"""Which frames Stage 4 uses: those that together constrain every direction of the extrinsic.
+
+A frame's evidence lies on its occluding contours (the edges both sensors see). A contour sample
+constrains the image coordinate across its edge: a depth jump along a scan line (a vertical image
+edge) fixes ``u``, one between rings (a horizontal edge, a silhouette against the sky) fixes
+``v``. So a frame's information about ``δ = (ρ, ω)`` is ``Σ_i J_iᵀ J_i`` with ``J_i`` that row of
+the reprojection Jacobian, computed from the scan alone under the initial extrinsic (no image, no
+matching). Frames are then chosen greedily to maximise ``log det`` of the summed information
+(D-optimal design: the choice does not depend on the units of ``ρ`` and ``ω``, and a frame that
+pins a direction the others leave loose gains the most).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from calib.match.contours import horizontal_edges, vertical_edges
+from calib.refine.solver import reprojection_jacobian
+
+__all__ = ["FrameSelectionConfig", "contour_information", "select_informative"]
+
+
+class FrameSelectionConfig(BaseModel):
+    """``selection:`` in ``calibrate.yaml``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    method: Literal["spread", "information"] = Field(
+        "information",
+        description="spread: evenly over the sequence; information: the most informative of the candidates",
+    )
+    candidates: int = Field(
+        3, ge=1, description="candidates looked at per frame used (spread evenly over the sequence)"
+    )
+
+
+def contour_information(
+    points_lidar: np.ndarray, T_cam_lidar: np.ndarray, K: np.ndarray, image_size: tuple[int, int]
+) -> np.ndarray:
+    """``(6, 6)`` information about ``δ = (ρ, ω)`` (metres, radians; camera frame, as the solver's
+    ``exp(δ) · T``) from one scan's occluding contours in view, one pixel of noise each.
+
+    Args:
+        points_lidar: ``(N, 3+)`` the scan. T_cam_lidar: ``(4, 4)``. K: ``(3, 3)``.
+        image_size: ``(H, W)``.
+    """
+    across_u = horizontal_edges(points_lidar)
+    contours, silhouettes, _ = vertical_edges(points_lidar)
+    across_v = np.concatenate([contours, silhouettes])
+    H, W = image_size
+    information = np.zeros((6, 6))
+    for samples, row in ((across_u, 0), (across_v, 1)):
+        q = samples @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]
+        q = q[q[:, 2] > 0.5]
+        uv = (q @ K.T)[:, :2] / (q @ K.T)[:, 2:]
+        q = q[(uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)]
+        J = reprojection_jacobian(torch.as_tensor(q), torch.as_tensor(K))[:, row, :].numpy()
+        information += J.T @ J
+    return information
+
+
+def select_informative(informations: Sequence[np.ndarray], count: int) -> list[int]:
+    """Positions of ``count`` of the ``(6, 6)`` ``informations``, chosen one after another, each
+    maximising ``log det`` of the chosen ones' sum (a tiny ridge, relative to the candidates' mean
+    trace, keeps the first choices comparable while the sum is still singular)."""
+    if count >= len(informations):
+        return list(range(len(informations)))
+    stack = np.asarray(informations, np.float64)
+    ridge = 1e-9 * max(float(np.trace(stack.mean(0))), 1e-300) * np.eye(6)
+    chosen: list[int] = []
+    total = ridge
+    for _ in range(count):
+        scores = [
+            -np.inf if i in chosen else np.linalg.slogdet(total + stack[i])[1] for i in range(len(stack))
+        ]
+        best = int(np.argmax(scores))
+        chosen.append(best)
+        total = total + stack[best]
+    return sorted(chosen)

@@ -1,0 +1,161 @@
+"""Outlier rules of Stage 4 (calib/refine/outliers.py) and how refine_passes uses them: a frame of
+wrong matches sits out, a pass that makes the matcher's residuals worse is undone."""
+
+import numpy as np
+import pytest
+import torch
+from pydantic import ValidationError
+
+from calib.data.types import Calibration, Frame
+from calib.geometry import calibration_error, perturb
+from calib.match.correspondences import Correspondences
+from calib.refine.outliers import RAYLEIGH_MEDIAN, OutlierConfig, frame_outliers, near_points, trim_points
+from calib.refine.passes import CalibrateConfig, refine_passes
+from calib.support.source import UniformSupport
+
+K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
+T_TRUE = np.array([[0, -1, 0, 0.05], [0, 0, -1, -0.1], [1, 0, 0, 0.2], [0, 0, 0, 1.0]])  # LiDAR x forward
+
+
+def test_near_points_known_answer():
+    points = np.array([[1.0, 0, 0, 5], [0, 2.0, 0, 5], [0.3, 0.3, 0.3, 5]])
+    assert near_points(points, 1.5).tolist() == [True, False, True]
+    assert not near_points(points, 0.0).any()
+
+
+def test_frame_outliers_known_answers():
+    assert frame_outliers(np.array([1.0, 1.2, 0.9, 5.0]), 2.5, 3.0).tolist() == [False, False, False, True]
+    assert not frame_outliers(np.array([1.0, 1.2, 0.9, 2.9]), 2.5, 3.0).any()  # under the floor
+    assert not frame_outliers(np.array([1.0, 50.0]), 2.5, 3.0).any()  # two frames cannot outvote
+    medians = np.array([1.0, 1.0, 1.0, 9.0, 9.0, 9.0])
+    assert frame_outliers(medians, 2.5, 0.0).sum() <= len(medians) // 2
+
+
+def test_trim_points_keeps_gaussian_residuals_and_drops_gross_ones():
+    rng = np.random.default_rng(0)
+    inliers = np.linalg.norm(rng.normal(0, 1.5, (5000, 2)), axis=1)
+    assert np.median(inliers) / RAYLEIGH_MEDIAN == pytest.approx(1.5, rel=0.05)
+    residual = np.concatenate([inliers, np.full(500, 40.0)])
+    keep = trim_points(residual, 3.0, 2.0)
+    assert not keep[5000:].any()
+    assert keep[:5000].mean() > 0.98  # 3σ of a 2-D Gaussian norm passes 98.9 %
+    assert trim_points(np.array([0.1, 0.1, 1.9]), 3.0, 2.0).all()  # within the floor
+    assert trim_points(np.zeros(0), 3.0, 2.0).shape == (0,)
+
+
+def test_outlier_config_is_validated():
+    with pytest.raises(ValidationError):
+        OutlierConfig(frame_factor=0.5)
+    with pytest.raises(ValidationError):
+        OutlierConfig(unknown=1)
+
+
+def _frame(seed: int) -> Frame:
+    rng = np.random.default_rng(seed)
+    points = np.column_stack([rng.uniform(5, 30, 3000), rng.uniform(-8, 8, 3000), rng.uniform(-1.5, 3, 3000)])
+    return Frame(
+        image=np.zeros((240, 640, 3), np.uint8),
+        points=np.column_stack([points, np.ones(3000)]).astype(np.float32),
+        calibration=Calibration(K=K, T_cam_lidar=T_TRUE),
+        name=f"f{seed}",
+    )
+
+
+def _project(points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    q = points @ T[:3, :3].T + T[:3, 3]
+    return (q @ K.T)[:, :2] / q[:, 2:3]
+
+
+class ScriptedMatcher:
+    """Matches every frame perfectly toward ``T_TRUE``, except: frames in ``liars`` always point
+    toward ``T_lie``, and the first ``lie_calls`` calls point toward ``T_lie`` everywhere."""
+
+    name = "scripted"
+
+    def __init__(self, T_lie: np.ndarray, liars: tuple[str, ...] = (), lie_calls: int = 0) -> None:
+        self.T_lie, self.liars, self.lie_calls, self.calls = T_lie, liars, lie_calls, 0
+
+    def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
+        self.calls += 1
+        lying = frame.name in self.liars or self.calls <= self.lie_calls
+        points = frame.points[:, :3].astype(np.float64)
+        uv = _project(points, T_cam_lidar)
+        target = _project(points, self.T_lie if lying else T_TRUE)
+        return Correspondences(
+            np.arange(len(points)), points, uv, target, np.ones(len(points), np.float32), (240, 640)
+        )
+
+
+def test_a_frame_of_wrong_matches_sits_out():
+    frames = [_frame(i) for i in range(5)]
+    T_lie = perturb(T_TRUE, 5.0, 0.6, torch.Generator().manual_seed(1))  # inside the loss's reach
+    T_init = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
+    config = CalibrateConfig(passes=4, sampling={"per_frame": 500})
+    result = refine_passes(
+        frames,
+        T_init,
+        ScriptedMatcher(T_lie, liars=("f3",)),
+        UniformSupport(),
+        config,
+        np.random.default_rng(0),
+    )
+    error = calibration_error(result.T_cam_lidar, T_TRUE)
+    assert error.translation_cm < 0.05 and error.rotation_deg < 0.005
+    assert [3] in [p["frames_left_out"] for p in result.passes]
+    # without the rules the liar pulls the shared estimate off: its residuals (a few pixels)
+    # are inliers to the robust loss
+    lenient = config.model_copy(update={"outliers": OutlierConfig(frame_factor=1000.0, point_sigmas=1000.0)})
+    pulled = refine_passes(
+        frames,
+        T_init,
+        ScriptedMatcher(T_lie, liars=("f3",)),
+        UniformSupport(),
+        lenient,
+        np.random.default_rng(0),
+    )
+    pulled_error = calibration_error(pulled.T_cam_lidar, T_TRUE)
+    assert pulled_error.rotation_deg > 0.02 and pulled_error.translation_cm > 0.2
+
+
+def test_a_pass_that_makes_the_residuals_worse_is_undone():
+    frames = [_frame(i) for i in range(3)]
+    T_init = perturb(T_TRUE, 2.0, 0.5, torch.Generator().manual_seed(3))
+    T_lie = perturb(T_init, 10.0, 2.0, torch.Generator().manual_seed(4))  # farther from the truth
+    config = CalibrateConfig(passes=3, sampling={"per_frame": 500}, halvings=0)
+    matcher = ScriptedMatcher(T_lie, lie_calls=len(frames))  # the first pass is led astray
+    result = refine_passes(frames, T_init, matcher, UniformSupport(), config, np.random.default_rng(0))
+    assert np.allclose(result.T_cam_lidar, T_init)
+    assert result.passes[0]["accepted"] is False
+    assert result.passes[0]["alignment_after_px"] > result.passes[0]["alignment_px"]
+    assert len(result.passes) == 1 and matcher.calls == 2 * len(frames)
+    # backtracking: the step is halved until the residuals fall, and the next passes go on
+    halving = config.model_copy(update={"halvings": 4})
+    matcher = ScriptedMatcher(T_lie, lie_calls=len(frames))
+    backed = refine_passes(frames, T_init, matcher, UniformSupport(), halving, np.random.default_rng(0))
+    assert backed.passes[0]["accepted"] and backed.passes[0]["step"] < 1
+    assert backed.passes[0]["alignment_after_px"] < backed.passes[0]["alignment_px"]
+    assert calibration_error(backed.T_cam_lidar, T_TRUE).rotation_deg < 0.001
+    # unchecked, the pass is kept
+    unchecked = config.model_copy(update={"check_passes": False, "passes": 1})
+    kept = refine_passes(
+        frames,
+        T_init,
+        ScriptedMatcher(T_lie, lie_calls=3),
+        UniformSupport(),
+        unchecked,
+        np.random.default_rng(0),
+    )
+    assert calibration_error(kept.T_cam_lidar, T_lie).rotation_deg < 0.001
+
+
+def test_points_near_the_lidar_are_not_used():
+    frame = _frame(0)
+    frame.points[:200, :3] = frame.points[:200, :3] / np.linalg.norm(
+        frame.points[:200, :3], axis=1, keepdims=True
+    )
+    config = CalibrateConfig(passes=1, sampling={"per_frame": 10000}, check_passes=False)
+    T_lie = perturb(T_TRUE, 30.0, 3.0, torch.Generator().manual_seed(1))
+    result = refine_passes(
+        [frame], T_TRUE, ScriptedMatcher(T_lie), UniformSupport(), config, np.random.default_rng(0)
+    )
+    assert result.passes[0]["correspondences"] + result.passes[0]["trimmed"] == 3000 - 200
