@@ -71,6 +71,12 @@ class CalibrateConfig(BaseModel):
         description="the passes go on from the coarse stage's answer only when their first pass from "
         "it ends with at most this times the median residual of their first pass from the initial extrinsic",
     )
+    check_below_px: float = Field(
+        3.0,
+        gt=0,
+        description="a pass is checked only when the median residual before it is below this (pixels "
+        "at the matcher's working focal length): farther out the residuals saturate at its reach",
+    )
     halvings: int = Field(
         2, ge=0, description="how often a pass that did not help is halved before it is undone"
     )
@@ -161,6 +167,8 @@ def refine_passes(
     if any(not np.allclose(f.K, K) for f in frames):
         raise DataError("frames", "have different intrinsics and cannot share one refinement")
     rules = config.outliers
+    # the check needs residuals the matcher can still measure: beyond its reach they saturate
+    reach_px = config.check_below_px * K[0, 0] / min(K[0, 0], config.edge.working_focal_px)
 
     def matched_under(T: np.ndarray) -> tuple[list[Correspondences], float]:
         matched = [_usable(matcher.match(frame, T), rules) for frame in frames]
@@ -218,7 +226,8 @@ def refine_passes(
         if history:  # this matching checks the last pass
             last = history[-1]
             last["alignment_after_px"] = alignment
-            if config.check_passes and not alignment < last["alignment_px"]:
+            checked = config.check_passes and last["alignment_px"] < reach_px
+            if checked and not alignment < last["alignment_px"]:
                 if last["step"] > 0.5**config.halvings:  # back along the pass's update, half way
                     last["step"] /= 2
                     T = _along(T_before, T, 0.5)
