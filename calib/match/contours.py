@@ -168,7 +168,11 @@ def vertical_edges(
     return contours, silhouettes, spacing
 
 
-def _in_view(points: np.ndarray, T: np.ndarray, K: np.ndarray, size: tuple[int, int], margin: float):
+def in_view(
+    points: np.ndarray, T: np.ndarray, K: np.ndarray, size: tuple[int, int], margin: float
+) -> np.ndarray:
+    """``(N,)`` bool: points of ``points (N, 3+)`` at least 0.5 m in front of the camera under ``T``
+    whose projection falls inside the ``(H, W)`` image grown by ``margin`` of its size on each side."""
     q = np.asarray(points[:, :3], np.float64) @ T[:3, :3].T + T[:3, 3]
     z = q[:, 2]
     uvw = q @ K.T
@@ -217,7 +221,7 @@ class ContourScore:
         samples: list[tuple[np.ndarray, np.ndarray]] = []
         self._edges = []
         for frame in frames:
-            keep = _in_view(frame.points, T, K, self.size, config.view_margin)
+            keep = in_view(frame.points, T, K, self.size, config.view_margin)
             xyz = np.asarray(frame.points[keep, :3], np.float64)
             h = horizontal_edges(xyz, both_sides=config.both_sides)
             v, sky, _ = vertical_edges(xyz, both_sides=config.both_sides)

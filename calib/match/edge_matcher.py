@@ -250,10 +250,10 @@ def lidar_field(
     nearer = ndimage.maximum_filter(inverse_depth, size=5)[rows, cols].astype(np.float64)
     rays = np.linalg.inv(K) @ np.stack([cols, rows, np.ones_like(cols)]).astype(np.float64)
     t = np.asarray(T_cam_lidar, np.float64)[:3, 3, None]
-    moved = rays + t * nearer  # (z·ray + t) / z, the same direction up to scale
-    uv = (K @ moved)[:2] / (K @ moved)[2]
-    ahead = (K @ moved)[2] > 0
-    return _splat(field[:, rows[ahead], cols[ahead]], uv.T[ahead], image_size), inverse_depth
+    uvw = K @ (rays + t * nearer)  # K (z·ray + t) / z: the same direction up to scale
+    ahead = uvw[2] > 0
+    uv = uvw[:2, ahead] / uvw[2, ahead]
+    return _splat(field[:, rows[ahead], cols[ahead]], uv.T, image_size), inverse_depth
 
 
 def _box_1d(x: torch.Tensor, k: int, dim: int) -> torch.Tensor:

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from calib.match.contours import horizontal_edges, vertical_edges
+from calib.match.contours import horizontal_edges, in_view, vertical_edges
 from calib.refine.solver import reprojection_jacobian
 
 __all__ = ["FrameSelectionConfig", "contour_information", "select_informative"]
@@ -52,13 +52,10 @@ def contour_information(
     across_u = horizontal_edges(points_lidar)
     contours, silhouettes, _ = vertical_edges(points_lidar)
     across_v = np.concatenate([contours, silhouettes])
-    H, W = image_size
     information = np.zeros((6, 6))
     for samples, row in ((across_u, 0), (across_v, 1)):
-        q = samples @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]
-        q = q[q[:, 2] > 0.5]
-        uv = (q @ K.T)[:, :2] / (q @ K.T)[:, 2:]
-        q = q[(uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)]
+        seen = samples[in_view(samples, T_cam_lidar, K, image_size, 0.0)]
+        q = seen @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]
         J = reprojection_jacobian(torch.as_tensor(q), torch.as_tensor(K))[:, row, :].numpy()
         information += J.T @ J
     return information

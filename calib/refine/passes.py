@@ -214,7 +214,7 @@ def refine_passes(
             result, entry = one_pass(T_start, *matched_under(T_start))
             probes.append((T_start, result, entry, matched_under(result.T_cam_lidar)))
         # the initial extrinsic (the user's, or Stage 1's) is a prior: another start must end its
-        # first pass clearly better aligned (median residual at most `clearly` times the initial's)
+        # first pass clearly better aligned (median residual at most `coarse_margin` times the initial's)
         after = np.array([probe[3][1] for probe in probes])
         best = int(np.argmin(after[1:])) + 1
         chosen = best if after[best] <= config.coarse_margin * after[0] else 0
@@ -236,7 +236,7 @@ def refine_passes(
                 last["accepted"] = False
                 T = T_before
                 break
-            update = history[-1]["update"]
+            update = last["update"]
             if (
                 update["translation_cm"] < config.min_update_cm
                 and update["rotation_deg"] < config.min_update_deg
