@@ -114,14 +114,19 @@ class Calibrator:
         T_init = _checked_extrinsic(T_init, "T_init")
         picks, loaded = self._pick_frames(seq, T_init)
         frames = [loaded[i] if i in loaded else seq[i] for i in picks]
-        T_coarse, coarse = T_init, []
+        coarse_starts: dict[str, np.ndarray] = {}  # other starts for the passes, by origin
+        coarse: list[dict] = []
         if self.config.coarse.enabled:  # Stage 4, coarse: edge alignment where the matcher cannot reach
-            search = global_search(frames, T_init, self.config.coarse)
-            T_coarse, coarse = search.T_cam_lidar, [{"stage": "global", **level} for level in search.levels]
+            for kind in self.config.coarse.scores:
+                search = global_search(frames, T_init, self.config.coarse, kind)
+                coarse_starts[f"global ({kind})"] = search.T_cam_lidar
+                coarse += [{"stage": "global", "score": kind, **level} for level in search.levels]
         if self.config.contour.enabled:  # then the contour score over all six parameters at once
-            climb = contour_refine(frames, T_coarse, self.config.contour)
-            T_coarse, coarse = climb.T_cam_lidar, coarse + [{"stage": "contour", **x} for x in climb.levels]
-        coarse_ran = self.config.coarse.enabled or self.config.contour.enabled
+            for origin, T_start in list((coarse_starts or {"initial": T_init}).items()):
+                climb = contour_refine(frames, T_start, self.config.contour)
+                coarse += [{"stage": "contour", "from": origin, **level} for level in climb.levels]
+                coarse_starts.pop(origin, None)
+                coarse_starts[f"{origin}, contour"] = climb.T_cam_lidar
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
             frames,
             T_init,
@@ -129,15 +134,17 @@ class Calibrator:
             self.support,
             self.config,
             np.random.default_rng(seed),
-            alternatives=[T_coarse] if coarse_ran else [],
+            alternatives=list(coarse_starts.values()),
         )
-        if coarse_ran:  # the passes went on from the start whose first pass ended better aligned
-            initial, from_coarse = passes.probe_alignments_px
+        if coarse_starts:  # the passes went on from the start whose first pass ended best aligned
+            origins = ["initial", *coarse_starts]
             coarse.append(
                 {
                     "stage": "choice",
-                    "kept": "coarse" if passes.start else "initial",
-                    "alignment_after_first_pass_px": {"initial": initial, "coarse": from_coarse},
+                    "kept": origins[passes.start],
+                    "alignment_after_first_pass_px": dict(
+                        zip(origins, passes.probe_alignments_px, strict=True)
+                    ),
                 }
             )
         covariance_t, covariance_r = passes.covariance[:3, :3], passes.covariance[3:, 3:]

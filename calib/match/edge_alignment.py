@@ -21,8 +21,11 @@ import torch.nn.functional as F
 from calib.data.types import Frame
 from calib.errors import DataError
 from calib.features import depth_discontinuities
+from calib.match.edge_matcher import image_edges
 
-__all__ = ["EdgeAlignment", "contour_points", "edge_strength"]
+__all__ = ["SCORE_KINDS", "EdgeAlignment", "contour_points", "edge_strength"]
+
+SCORE_KINDS = ("magnitude", "orientation")
 
 
 def edge_strength(image: np.ndarray, blur_px: float = 1.0) -> np.ndarray:
@@ -50,11 +53,16 @@ class EdgeAlignment:
 
     Args:
         frames: the frames. max_points: contour points kept per frame. seed: their draw.
+        kind: the edge map, ``magnitude`` or ``orientation`` (module docstring).
     """
 
-    def __init__(self, frames: Sequence[Frame], max_points: int = 1500, seed: int = 0) -> None:
+    def __init__(
+        self, frames: Sequence[Frame], max_points: int = 1500, seed: int = 0, kind: str = "magnitude"
+    ) -> None:
         if not frames:
             raise DataError("frames", "edge alignment needs at least one frame")
+        if kind not in SCORE_KINDS:
+            raise DataError("kind", f"edge alignment kind must be one of {SCORE_KINDS}, got {kind!r}")
         self.K = torch.as_tensor(frames[0].K, dtype=torch.float64)
         self.size = frames[0].image_size
         rng = np.random.default_rng(seed)
@@ -66,17 +74,21 @@ class EdgeAlignment:
             self.points[k, : len(cloud)] = torch.from_numpy(cloud)
             self.mask[k, : len(cloud)] = True
         self.contours = [len(c) for c in clouds]
-        self.edges = [edge_strength(f.image) for f in frames]
+        self.kind = kind
+        self.edges = [
+            edge_strength(f.image) if kind == "magnitude" else image_edges(f.image)[0] for f in frames
+        ]
         self._maps: dict[float, torch.Tensor] = {}
 
     def maps(self, sigma_px: float) -> torch.Tensor:
-        """``(F, 1, H, W)`` edge maps blurred by ``σ`` and renormalised to a peak of 1."""
+        """``(F, 1, H, W)`` edge maps blurred by ``σ`` and renormalised to a peak of 1 (of ``|·|``:
+        the orientation map is signed)."""
         key = round(float(sigma_px), 3)
         if key not in self._maps:
             blurred = []
             for e in self.edges:
                 b = cv2.GaussianBlur(e, (0, 0), sigma_px) if sigma_px > 0 else e
-                blurred.append(b / max(float(b.max()), 1e-6))
+                blurred.append(b / max(float(np.abs(b).max()), 1e-6))
             self._maps[key] = torch.from_numpy(np.stack(blurred))[:, None].float()
         return self._maps[key]
 

@@ -4,11 +4,14 @@ coarse to fine over a pyramid of blur scales ``σ``. At the coarsest scale a gri
 around the start is scored and the best few are climbed; rotation alone is searched while ``σ``
 is large (translation barely moves distant points), then all six parameters. Each scale's steps
 scale with ``σ``; a move is taken only when the score rises, so every level can only improve it.
+It runs once per edge map in ``scores`` (:data:`calib.match.edge_alignment.SCORE_KINDS`: which one
+finds the basin depends on the scene); the dense passes then keep the answer they align best.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import torch
@@ -16,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 
 from calib.data.types import Frame
 from calib.geometry import se3_exp, twist_steps
-from calib.match.edge_alignment import EdgeAlignment
+from calib.match.edge_alignment import SCORE_KINDS, EdgeAlignment
 
 __all__ = ["GlobalSearchConfig", "GlobalSearchResult", "global_search"]
 
@@ -31,6 +34,9 @@ class GlobalSearchConfig(BaseModel):
         True,
         description="run the global coarse stage before the dense passes (they go on from its answer "
         "only when their first pass ends better aligned there than from the initial extrinsic)",
+    )
+    scores: tuple[Literal[SCORE_KINDS], ...] = Field(  # type: ignore[valid-type]
+        SCORE_KINDS, min_length=1, description="edge maps searched, each giving the dense passes a start"
     )
     sigmas_px: tuple[PositiveFloat, ...] = Field(
         (32.0, 16.0, 8.0, 4.0), min_length=1, description="blur scales, coarse to fine (px at f = 721)"
@@ -47,10 +53,12 @@ class GlobalSearchConfig(BaseModel):
 
 @dataclass(frozen=True)
 class GlobalSearchResult:
-    """``T_cam_lidar (4, 4)`` after the search; ``levels``: per scale the score before and after."""
+    """``T_cam_lidar (4, 4)`` after the search with the edge map ``kind``; ``levels``: per scale
+    the score before and after."""
 
     T_cam_lidar: np.ndarray
     levels: list[dict]
+    kind: str
 
 
 def _climb(
@@ -81,12 +89,21 @@ def _climb(
     return T, best
 
 
+def _rotation_grid(cells: int, spacing: float) -> torch.Tensor:
+    """``(cells³, 6)`` twists of pure rotation on a cubic grid of ``spacing`` radians centred on zero."""
+    offsets = (torch.arange(cells, dtype=torch.float64) - (cells - 1) / 2) * spacing
+    twists = torch.zeros(cells**3, 6, dtype=torch.float64)
+    twists[:, 3:] = torch.cartesian_prod(offsets, offsets, offsets)
+    return twists
+
+
 def global_search(
-    frames: list[Frame], T_init: np.ndarray, config: GlobalSearchConfig | None = None
+    frames: list[Frame], T_init: np.ndarray, config: GlobalSearchConfig | None = None, kind: str = "magnitude"
 ) -> GlobalSearchResult:
-    """Climb the edge-alignment score from ``T_init (4, 4)`` over ``frames`` (one shared ``K``)."""
+    """Climb the edge-alignment score with the edge map ``kind`` from ``T_init (4, 4)`` over
+    ``frames`` (one shared ``K``)."""
     config = config if config is not None else GlobalSearchConfig()
-    score = EdgeAlignment(frames, config.contour_points)
+    score = EdgeAlignment(frames, config.contour_points, kind=kind)
     focal = float(frames[0].K[0, 0])
     T_start = torch.as_tensor(np.asarray(T_init, np.float64))
     T, levels = T_start, []
@@ -95,13 +112,8 @@ def global_search(
         rotation = sigma / focal  # one σ of image motion, radians
         translation = 0.0 if sigma_ref > config.rotation_only_above_px else rotation * config.depth_m
         before = float(score(T, sigma)[0])
-        if level == 0 and config.grid > 1:
-            offsets = (torch.arange(config.grid, dtype=torch.float64) - (config.grid - 1) / 2) * (
-                config.grid_spacing * rotation
-            )
-            twists = torch.zeros(config.grid**3, 6, dtype=torch.float64)
-            twists[:, 3:] = torch.cartesian_prod(offsets, offsets, offsets)
-            cells = se3_exp(twists) @ T
+        if level == 0 and config.grid > 1:  # a grid of rotations around the start, its best climbed
+            cells = se3_exp(_rotation_grid(config.grid, config.grid_spacing * rotation)) @ T
             top = score(cells, sigma).topk(min(config.starts, len(cells))).indices
             climbed = [_climb(score, sigma, cells[i], rotation, translation, T_start, config) for i in top]
             T, after = max(climbed, key=lambda c: c[1])
@@ -110,4 +122,4 @@ def global_search(
         else:
             T, after = _climb(score, sigma, T, rotation, translation, T_start, config)
         levels.append({"sigma_px": sigma, "score_before": before, "score_after": after})
-    return GlobalSearchResult(T.numpy(), levels)
+    return GlobalSearchResult(T.numpy(), levels, kind)

@@ -3,6 +3,7 @@ matcher three times; each pass starts from the last estimate)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,7 +14,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib.data.types import Frame
-from calib.errors import DataError
+from calib.errors import DataError, NumericalError
 from calib.geometry import calibration_error, se3_exp, se3_log
 from calib.match.correspondences import Correspondences, Matcher
 from calib.match.edge_matcher import EdgeMatcherConfig
@@ -98,14 +99,15 @@ class PassesResult:
     dict per pass (iterations, cost, correspondences, alignment, update, accepted);
     ``correspondences`` used in the last accepted pass; ``start`` which start the passes took
     (0: ``T_init``, then the alternatives) and ``probe_alignments_px`` the median residual after
-    the first pass from each (empty without alternatives)."""
+    the first pass from each (empty without alternatives; None where the matcher found too few
+    correspondences to fit)."""
 
     T_cam_lidar: np.ndarray
     covariance: np.ndarray
     passes: list[dict]
     correspondences: int
     start: int = 0
-    probe_alignments_px: list[float] = field(default_factory=list)
+    probe_alignments_px: list[float | None] = field(default_factory=list)
 
 
 def draw(
@@ -210,8 +212,14 @@ def refine_passes(
     starts = [np.asarray(T, np.float64) for T in (T_init, *alternatives)]
     T, T_before, history, fits, pending, chosen, probes = starts[0], None, [], [], None, 0, []
     if len(starts) > 1:
-        for T_start in starts:
-            result, entry = one_pass(T_start, *matched_under(T_start))
+        for k, T_start in enumerate(starts):
+            try:
+                result, entry = one_pass(T_start, *matched_under(T_start))
+            except NumericalError:  # an alternative where the matcher finds (almost) nothing
+                if k == 0:
+                    raise
+                probes.append((T_start, None, None, (None, math.inf)))
+                continue
             probes.append((T_start, result, entry, matched_under(result.T_cam_lidar)))
         # the initial extrinsic (the user's, or Stage 1's) is a prior: another start must end its
         # first pass clearly better aligned (median residual at most `coarse_margin` times the initial's)
@@ -250,7 +258,14 @@ def refine_passes(
         T_before, T = T, result.T_cam_lidar
     accepted = [fit for fit, step in zip(fits, history, strict=True) if step["accepted"]] or fits
     covariance, correspondences = accepted[-1]
-    return PassesResult(T, covariance, history, correspondences, chosen, [after[1] for *_, after in probes])
+    return PassesResult(
+        T,
+        covariance,
+        history,
+        correspondences,
+        chosen,
+        [a if math.isfinite(a) else None for *_, (_, a) in probes],
+    )
 
 
 def load_calibrate_config(path: Path | None = None) -> CalibrateConfig:

@@ -80,6 +80,18 @@ def test_the_calibrator_records_both_coarse_stages(urban):
     assert len(result.passes) == 1
 
 
+def test_the_calibrator_searches_with_each_edge_map(urban):
+    T_ref = urban[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(4))
+    config = CalibrateConfig(frames=3, passes=1, coarse={"sigmas_px": (16.0, 8.0)})
+    result = Calibrator(config=config).calibrate(urban, T_init)
+    stages = [(level["stage"], level.get("score")) for level in result.coarse]
+    assert stages == [("global", "magnitude")] * 2 + [("global", "orientation")] * 2 + [("choice", None)]
+    after = result.coarse[-1]["alignment_after_first_pass_px"]
+    assert list(after) == ["initial", "global (magnitude)", "global (orientation)"]
+    assert result.coarse[-1]["kept"] in after
+
+
 @pytest.fixture(scope="module")
 def kitti_raw(realdata) -> tuple[list[Frame], np.ndarray]:
     """The six real KITTI raw 2011_09_28 frames (grey camera 0) and their reference."""

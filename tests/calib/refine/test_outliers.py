@@ -160,3 +160,38 @@ def test_points_near_the_lidar_are_not_used():
         [frame], T_TRUE, ScriptedMatcher(T_lie), UniformSupport(), config, np.random.default_rng(0)
     )
     assert result.passes[0]["correspondences"] + result.passes[0]["trimmed"] == 3000 - 200
+
+
+class BlindAt(ScriptedMatcher):
+    """Perfect matches toward ``T_TRUE``, except none at all under ``T_blind``."""
+
+    def __init__(self, T_blind: np.ndarray) -> None:
+        super().__init__(T_TRUE)
+        self.T_blind = T_blind
+
+    def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
+        if np.allclose(T_cam_lidar, self.T_blind):
+            empty = np.zeros((0, 2))
+            return Correspondences(
+                np.zeros(0, int), np.zeros((0, 3)), empty, empty, np.zeros(0, np.float32), (240, 640)
+            )
+        return super().match(frame, T_cam_lidar)
+
+
+def test_an_alternative_start_where_the_matcher_finds_nothing_is_passed_over():
+    frames = [_frame(i) for i in range(3)]
+    T_init = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
+    T_blind = perturb(T_TRUE, 50.0, 10.0, torch.Generator().manual_seed(3))
+    config = CalibrateConfig(passes=2, sampling={"per_frame": 500})
+    result = refine_passes(
+        frames,
+        T_init,
+        BlindAt(T_blind),
+        UniformSupport(),
+        config,
+        np.random.default_rng(0),
+        alternatives=[T_blind],
+    )
+    assert result.start == 0 and result.probe_alignments_px[1] is None
+    assert result.probe_alignments_px[0] < 0.1
+    assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.01
