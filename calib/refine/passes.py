@@ -163,7 +163,12 @@ def refine_passes(
     an alternative only when clearly so (``config.coarse_margin``: ``T_init`` is a prior):
     far from the truth the matcher's residuals saturate at its search range, so the alignment of
     a start itself cannot tell two bad starts apart, but one pass brings a start inside the
-    matcher's reach to a low median residual and leaves one outside it high.
+    matcher's reach to a low median residual and leaves one outside it high. A start under which
+    the matcher finds too few correspondences to fit is passed over (``None`` in
+    ``probe_alignments_px``); when every start is, the refinement raises.
+
+    Raises:
+        NumericalError: too few correspondences to fit (from every start, with alternatives).
     """
     K = frames[0].K
     if any(not np.allclose(f.K, K) for f in frames):
@@ -215,8 +220,8 @@ def refine_passes(
         for k, T_start in enumerate(starts):
             try:
                 result, entry = one_pass(T_start, *matched_under(T_start))
-            except NumericalError:  # an alternative where the matcher finds (almost) nothing
-                if k == 0:
+            except NumericalError:  # a start where the matcher finds (almost) nothing
+                if k == len(starts) - 1 and all(probe[1] is None for probe in probes):
                     raise
                 probes.append((T_start, None, None, (None, math.inf)))
                 continue
@@ -225,7 +230,7 @@ def refine_passes(
         # first pass clearly better aligned (median residual at most `coarse_margin` times the initial's)
         after = np.array([probe[3][1] for probe in probes])
         best = int(np.argmin(after[1:])) + 1
-        chosen = best if after[best] <= config.coarse_margin * after[0] else 0
+        chosen = best if after[best] <= config.coarse_margin * after[0] else 0  # inf: the initial failed
         T_before, result, entry, pending = probes[chosen]
         T, history, fits = result.T_cam_lidar, [entry], [(result.covariance, entry["correspondences"])]
     while not (len(history) == config.passes and not config.check_passes):

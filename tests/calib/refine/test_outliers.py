@@ -7,6 +7,7 @@ import torch
 from pydantic import ValidationError
 
 from calib.data.types import Calibration, Frame
+from calib.errors import NumericalError
 from calib.geometry import calibration_error, perturb
 from calib.match.correspondences import Correspondences
 from calib.refine.outliers import RAYLEIGH_MEDIAN, OutlierConfig, frame_outliers, near_points, trim_points
@@ -195,3 +196,23 @@ def test_an_alternative_start_where_the_matcher_finds_nothing_is_passed_over():
     assert result.start == 0 and result.probe_alignments_px[1] is None
     assert result.probe_alignments_px[0] < 0.1
     assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.01
+
+
+def test_when_the_initial_start_finds_nothing_an_alternative_carries_on():
+    frames = [_frame(i) for i in range(3)]
+    T_blind = perturb(T_TRUE, 50.0, 10.0, torch.Generator().manual_seed(3))
+    T_alternative = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
+    config = CalibrateConfig(passes=2, sampling={"per_frame": 500})
+    result = refine_passes(
+        frames,
+        T_blind,
+        BlindAt(T_blind),
+        UniformSupport(),
+        config,
+        np.random.default_rng(0),
+        alternatives=[T_alternative],
+    )
+    assert result.start == 1 and result.probe_alignments_px[0] is None
+    assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.01
+    with pytest.raises(NumericalError, match="correspondences"):
+        refine_passes(frames, T_blind, BlindAt(T_blind), UniformSupport(), config, np.random.default_rng(0))
