@@ -179,40 +179,19 @@ class BlindAt(ScriptedMatcher):
         return super().match(frame, T_cam_lidar)
 
 
-def test_an_alternative_start_where_the_matcher_finds_nothing_is_passed_over():
+@pytest.mark.parametrize("blind_start", [1, 0])
+def test_a_start_where_the_matcher_finds_nothing_is_passed_over(blind_start):
+    """Whichever start is blind (an alternative, or the initial extrinsic itself), the passes go on
+    from the other; with no other start the refinement raises."""
     frames = [_frame(i) for i in range(3)]
-    T_init = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
+    T_seeing = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
     T_blind = perturb(T_TRUE, 50.0, 10.0, torch.Generator().manual_seed(3))
+    starts = [T_seeing, T_blind] if blind_start == 1 else [T_blind, T_seeing]
     config = CalibrateConfig(passes=2, sampling={"per_frame": 500})
-    result = refine_passes(
-        frames,
-        T_init,
-        BlindAt(T_blind),
-        UniformSupport(),
-        config,
-        np.random.default_rng(0),
-        alternatives=[T_blind],
-    )
-    assert result.start == 0 and result.probe_alignments_px[1] is None
-    assert result.probe_alignments_px[0] < 0.1
-    assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.01
-
-
-def test_when_the_initial_start_finds_nothing_an_alternative_carries_on():
-    frames = [_frame(i) for i in range(3)]
-    T_blind = perturb(T_TRUE, 50.0, 10.0, torch.Generator().manual_seed(3))
-    T_alternative = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
-    config = CalibrateConfig(passes=2, sampling={"per_frame": 500})
-    result = refine_passes(
-        frames,
-        T_blind,
-        BlindAt(T_blind),
-        UniformSupport(),
-        config,
-        np.random.default_rng(0),
-        alternatives=[T_alternative],
-    )
-    assert result.start == 1 and result.probe_alignments_px[0] is None
+    matcher, rng = BlindAt(T_blind), np.random.default_rng(0)
+    result = refine_passes(frames, starts[0], matcher, UniformSupport(), config, rng, alternatives=starts[1:])
+    assert result.start == 1 - blind_start and result.probe_alignments_px[blind_start] is None
+    assert result.probe_alignments_px[1 - blind_start] < 0.1
     assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.01
     with pytest.raises(NumericalError, match="correspondences"):
-        refine_passes(frames, T_blind, BlindAt(T_blind), UniformSupport(), config, np.random.default_rng(0))
+        refine_passes(frames, T_blind, matcher, UniformSupport(), config, rng)
