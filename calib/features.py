@@ -10,7 +10,7 @@ from calib.data.types import Frame
 from calib.geometry import perturb
 from calib.projection import Visibility, project_scan
 
-__all__ = ["contour_alignment", "contour_check", "depth_discontinuities", "horizontal_gradient"]
+__all__ = ["contour_alignment", "contour_check", "depth_discontinuities", "horizontal_gradient", "ring_spacing_deg"]
 
 
 def depth_discontinuities(
@@ -66,6 +66,24 @@ def depth_discontinuities(
     nearer = np.where(a_nearer, a[k], b[k])[keep]
     farther = np.where(a_nearer, b[k], a[k])[keep]
     return nearer, farther
+
+
+def ring_spacing_deg(points_lidar: np.ndarray, column_deg: float = 0.4, same_ring_deg: float = 0.1) -> float:
+    """Median elevation gap between vertically neighbouring rings of a spinning LiDAR's scan, in
+    degrees (KITTI's HDL-64: 0.4; nuScenes' 32 rings: 1.33), 0 for fewer than two rings.
+
+    Within each azimuth column ``column_deg`` wide, elevations closer than ``same_ring_deg`` count
+    as one ring; gaps over 3° (a missing return) are left out.
+    """
+    xyz = np.asarray(points_lidar, np.float64)[:, :3]
+    horizontal = np.hypot(xyz[:, 0], xyz[:, 1])
+    column = np.floor(np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])) / column_deg).astype(np.int64)
+    elevation = np.degrees(np.arctan2(xyz[:, 2], horizontal))
+    order = np.lexsort((elevation, column))
+    c, e = column[order], elevation[order]
+    gap = np.diff(e)
+    between = (c[1:] == c[:-1]) & (gap >= same_ring_deg) & (gap < 3.0)
+    return float(np.median(gap[between])) if between.any() else 0.0
 
 
 def horizontal_gradient(image: np.ndarray, reference_width: int = 1242) -> np.ndarray:

@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat
 from scipy import ndimage
 
 from calib.data.types import Frame
+from calib.features import ring_spacing_deg
 from calib.match.correspondences import Correspondences, working_view
 from calib.projection import ProjectedScan, Visibility, project_scan
 
@@ -42,7 +43,9 @@ class EdgeMatcherConfig(BaseModel):
         gt=0,
         description="a pixel farther than this from every return is 'no return' (sky) "
         "when the LiDAR looks there; about one ring spacing, so a silhouette against the sky "
-        "falls half a spacing beyond the last return, where the true edge lies on average",
+        "falls half a spacing beyond the last return, where the true edge lies on average "
+        "(KITTI's HDL-64: 0.4°); a scan whose rings lie farther apart uses its own median "
+        "spacing (nuScenes' 32 rings: 1.33°), else its pixels between rings would read as sky",
     )
     far_depth_m: float = Field(200.0, gt=0, description="depth given to no-return pixels")
     depth_edge_px: tuple[NonNegativeFloat, NonNegativeFloat] = Field(
@@ -172,8 +175,9 @@ def lidar_edges(
     rc = np.rint(scan.uv[far_first, ::-1]).astype(int)
     ids[rc[:, 0], rc[:, 1]] = far_first
     dist = ndimage.distance_transform_edt(ids < 0)
-    fill_px = K[0, 0] * np.tan(np.radians(config.fill_radius_deg))
-    sees = _lidar_sees(points_lidar, T_cam_lidar, K, (H, W), config.fill_radius_deg)
+    fill_deg = max(config.fill_radius_deg, ring_spacing_deg(points_lidar))
+    fill_px = K[0, 0] * np.tan(np.radians(fill_deg))
+    sees = _lidar_sees(points_lidar, T_cam_lidar, K, (H, W), fill_deg)
     # open sky seeds a Voronoi cell of its own, so an object's silhouette against the sky falls
     # midway between its last return and the sky, not at the fill radius
     sky = len(scan.depth)

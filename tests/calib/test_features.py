@@ -1,6 +1,7 @@
 import numpy as np
+import pytest
 
-from calib.features import depth_discontinuities, horizontal_gradient
+from calib.features import depth_discontinuities, horizontal_gradient, ring_spacing_deg
 
 
 def _ring(elevation_deg: float, ranges: np.ndarray, azimuth_deg: np.ndarray) -> np.ndarray:
@@ -55,3 +56,19 @@ def test_horizontal_gradient_sees_vertical_edges_only():
     assert g.shape == (40, 60) and g.max() <= 1.0
     assert g[10, 29:31].max() > 0.9
     assert g[19:21, 5].max() < 0.05
+
+
+def _rings(spacing_deg: float, count: int) -> np.ndarray:
+    """A spinning LiDAR's scan of a 10 m cylinder around it: ``count`` rings ``spacing_deg`` apart."""
+    azimuth, elevation = np.meshgrid(
+        np.radians(np.arange(-180, 180, 0.2)), np.radians(-20 + spacing_deg * np.arange(count))
+    )
+    return np.column_stack(
+        [10 * np.cos(azimuth).ravel(), 10 * np.sin(azimuth).ravel(), 10 * np.tan(elevation).ravel()]
+    )
+
+
+def test_ring_spacing_known_answers():
+    assert ring_spacing_deg(_rings(0.4, 64)) == pytest.approx(0.4, abs=0.01)  # KITTI's HDL-64
+    assert ring_spacing_deg(_rings(1.33, 32)) == pytest.approx(1.33, abs=0.01)  # nuScenes' HDL-32
+    assert ring_spacing_deg(_rings(1.0, 1)) == 0.0
