@@ -10,7 +10,13 @@ from calib.data.types import Frame
 from calib.geometry import perturb
 from calib.projection import Visibility, project_scan
 
-__all__ = ["contour_alignment", "contour_check", "depth_discontinuities", "horizontal_gradient", "ring_spacing_deg"]
+__all__ = [
+    "contour_alignment",
+    "contour_check",
+    "depth_discontinuities",
+    "horizontal_gradient",
+    "ring_spacing_deg",
+]
 
 
 def depth_discontinuities(
