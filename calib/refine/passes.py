@@ -66,11 +66,13 @@ class CalibrateConfig(BaseModel):
         "fall, go back half the pass's update (up to `halvings` times), then undo it and stop",
     )
     coarse_margin: float = Field(
-        0.75,
+        0.5,
         gt=0,
         le=1,
-        description="the passes go on from the coarse stage's answer only when their first pass from "
-        "it ends with at most this times the median residual of their first pass from the initial extrinsic",
+        description="the passes go on from a coarse stage's answer only when their first pass from "
+        "it ends with at most this times the median residual of their first pass from the initial "
+        "extrinsic (measured: right answers 0.11-0.35; aliased ones on the vineyard's rows and a "
+        "sparse nuScenes frame 0.55-0.68)",
     )
     check_below_px: float = Field(
         3.0,
