@@ -74,6 +74,14 @@ class CalibrateConfig(BaseModel):
         "extrinsic (measured: right answers 0.11-0.53; aliased ones on the vineyard's rows and a "
         "sparse nuScenes frame 0.55-0.68: the ratio alone barely separates them)",
     )
+    coarse_min_share: float = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="a coarse stage's answer is kept only when its first pass leaves the matcher at "
+        "least this share of the correspondences it finds after the initial extrinsic's first pass "
+        "(a PJLab frame from 2°: an answer 42° off matched by 23 points at 9.4 px beat 211 at 42 px)",
+    )
     check_below_px: float = Field(
         3.0,
         gt=0,
@@ -231,6 +239,12 @@ def refine_passes(
         # the initial extrinsic (the user's, or Stage 1's) is a prior: another start must end its
         # first pass clearly better aligned (median residual at most `coarse_margin` times the initial's)
         after = np.array([probe[3][1] for probe in probes])
+        # a start matched by few points can show a low median by luck (an aliased pose): it must
+        # keep `coarse_min_share` of the initial's correspondences
+        counts = np.array(
+            [sum(len(c) for c in probe[3][0]) if probe[1] is not None else 0 for probe in probes]
+        )
+        after[1:][counts[1:] < config.coarse_min_share * counts[0]] = math.inf
         best = int(np.argmin(after[1:])) + 1
         chosen = best if after[best] <= config.coarse_margin * after[0] else 0  # inf: the initial failed
         T_before, result, entry, pending = probes[chosen]

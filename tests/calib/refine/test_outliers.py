@@ -195,3 +195,54 @@ def test_a_start_where_the_matcher_finds_nothing_is_passed_over(blind_start):
     assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.01
     with pytest.raises(NumericalError, match="correspondences"):
         refine_passes(frames, T_blind, matcher, UniformSupport(), config, rng)
+
+
+class FewAt(ScriptedMatcher):
+    """Under ``T_few`` (and wherever a pass from it lands) only 20 points match, all perfectly
+    toward ``T_few``; elsewhere every point matches toward ``T_TRUE`` with 1 px of noise."""
+
+    def __init__(self, T_few: np.ndarray) -> None:
+        super().__init__(T_TRUE)
+        self.T_few = T_few
+
+    def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
+        points = frame.points[:, :3].astype(np.float64)
+        uv = _project(points, T_cam_lidar)
+        if calibration_error(T_cam_lidar, self.T_few).rotation_deg < 0.5:
+            keep = np.arange(20)
+            target = _project(points, self.T_few)
+        else:
+            keep = np.arange(len(points))
+            noise = np.random.default_rng(int(frame.name[1:])).normal(0, 1.0, (len(points), 2))
+            target = _project(points, T_TRUE) + noise
+        return Correspondences(
+            keep, points[keep], uv[keep], target[keep], np.ones(len(keep), np.float32), (240, 640)
+        )
+
+
+def test_a_start_matched_by_few_points_is_not_kept_for_its_low_residual():
+    frames = [_frame(i) for i in range(3)]
+    T_init = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
+    T_few = perturb(T_TRUE, 50.0, 10.0, torch.Generator().manual_seed(3))
+    probe = {"passes": 1, "sampling": {"per_frame": 500}, "check_passes": False}
+    lured = refine_passes(
+        frames,
+        T_init,
+        FewAt(T_few),
+        UniformSupport(),
+        CalibrateConfig(**probe, coarse_min_share=0.0),
+        np.random.default_rng(0),
+        [T_few],
+    )
+    assert lured.start == 1  # 20 perfect matches beat 3000 noisy ones on the median alone
+    result = refine_passes(  # the packaged share, 0.5
+        frames,
+        T_init,
+        FewAt(T_few),
+        UniformSupport(),
+        CalibrateConfig(**probe),
+        np.random.default_rng(0),
+        [T_few],
+    )
+    assert result.start == 0
+    assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.05
