@@ -39,6 +39,7 @@ from supportnet.runtime.matcher_factory import build_matcher
 
 __all__ = ["run_maps"]
 
+
 def _preview(image: np.ndarray, values: np.ndarray) -> np.ndarray:
     """The image above the map (viridis, 0 to 1, colour bar underneath), stacked vertically."""
     return np.concatenate([image, map_picture(values, "agreement")], axis=0)
