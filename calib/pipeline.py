@@ -122,11 +122,12 @@ class Calibrator:
                 coarse_starts[f"global ({kind})"] = search.T_cam_lidar
                 coarse += [{"stage": "global", "score": kind, **level} for level in search.levels]
         if self.config.contour.enabled:  # then the contour score over all six parameters at once
-            for origin, T_start in list((coarse_starts or {"initial": T_init}).items()):
+            refined = {}
+            for origin, T_start in (coarse_starts or {"initial": T_init}).items():
                 climb = contour_refine(frames, T_start, self.config.contour)
                 coarse += [{"stage": "contour", "from": origin, **level} for level in climb.levels]
-                coarse_starts.pop(origin, None)
-                coarse_starts[f"{origin}, contour"] = climb.T_cam_lidar
+                refined[f"{origin}, contour"] = climb.T_cam_lidar
+            coarse_starts = refined
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
             frames,
             T_init,

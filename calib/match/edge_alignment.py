@@ -74,7 +74,6 @@ class EdgeAlignment:
             self.points[k, : len(cloud)] = torch.from_numpy(cloud)
             self.mask[k, : len(cloud)] = True
         self.contours = [len(c) for c in clouds]
-        self.kind = kind
         self.edges = [
             edge_strength(f.image) if kind == "magnitude" else image_edges(f.image)[0] for f in frames
         ]

@@ -53,12 +53,10 @@ class GlobalSearchConfig(BaseModel):
 
 @dataclass(frozen=True)
 class GlobalSearchResult:
-    """``T_cam_lidar (4, 4)`` after the search with the edge map ``kind``; ``levels``: per scale
-    the score before and after."""
+    """``T_cam_lidar (4, 4)`` after the search; ``levels``: per scale the score before and after."""
 
     T_cam_lidar: np.ndarray
     levels: list[dict]
-    kind: str
 
 
 def _climb(
@@ -122,4 +120,4 @@ def global_search(
         else:
             T, after = _climb(score, sigma, T, rotation, translation, T_start, config)
         levels.append({"sigma_px": sigma, "score_before": before, "score_after": after})
-    return GlobalSearchResult(T.numpy(), levels, kind)
+    return GlobalSearchResult(T.numpy(), levels)

@@ -244,7 +244,7 @@ def refine_passes(
         counts = np.array(
             [sum(len(c) for c in probe[3][0]) if probe[1] is not None else 0 for probe in probes]
         )
-        after[1:][counts[1:] < config.coarse_min_share * counts[0]] = math.inf
+        after[1:] = np.where(counts[1:] < config.coarse_min_share * counts[0], math.inf, after[1:])
         best = int(np.argmin(after[1:])) + 1
         chosen = best if after[best] <= config.coarse_margin * after[0] else 0  # inf: the initial failed
         T_before, result, entry, pending = probes[chosen]
