@@ -5,10 +5,16 @@ applied on the left (in the camera frame), by Levenberg–Marquardt on iterative
 normal equations with analytic Jacobians. Points may come from many frames at once: the
 extrinsic is shared, only the camera intrinsics ``K`` must be common. The loop runs in torch
 (float64) from end to end; numpy arrays are converted once at the entry and the exit.
+
+With a :class:`TimeModel` the camera–LiDAR time offset ``δt`` is a seventh parameter: each
+point ``q_i``, deskewed to its scan's stamp, is seen at the camera's time as
+``p_i(δt) = exp(−δt ξ_f) q_i`` (:mod:`calib.motion`, ``ξ_f`` its scan's twist), and
+``∂p_i/∂δt = −(ω_f × p_i + v_f)``.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -19,7 +25,14 @@ from pydantic import BaseModel, ConfigDict, Field
 from calib.errors import NumericalError
 from calib.geometry import se3_exp
 
-__all__ = ["RefineConfig", "Refinement", "refine_extrinsic", "reprojection_jacobian", "robust_weight"]
+__all__ = [
+    "RefineConfig",
+    "Refinement",
+    "TimeModel",
+    "refine_extrinsic",
+    "reprojection_jacobian",
+    "robust_weight",
+]
 
 
 class RefineConfig(BaseModel):
@@ -45,6 +58,9 @@ class Refinement:
         iterations: accepted and rejected LM steps taken. cost, initial_cost: the objective.
         converged: the step fell below the tolerance before ``max_iterations``.
         residuals: ``(N, 2)`` pixels ``π(K, T p_i) − ũ_i`` at the estimate.
+        time_offset_s: ``δt`` at the estimate, with a :class:`TimeModel` (else ``None``).
+        time_offset_std_s: its standard deviation (the ``δt`` entry of the 7x7 covariance,
+            whose extrinsic block is ``covariance``); ``None`` when ``δt`` was held fixed.
     """
 
     T_cam_lidar: np.ndarray
@@ -54,6 +70,26 @@ class Refinement:
     initial_cost: float
     converged: bool
     residuals: np.ndarray
+    time_offset_s: float | None = None
+    time_offset_std_s: float | None = None
+
+
+@dataclass(frozen=True)
+class TimeModel:
+    """The camera–LiDAR time offset as a parameter (see the module docstring).
+
+    Attributes:
+        scan: ``(N,)`` int, which scan each point belongs to (an index into ``twists``).
+        twists: ``(F, 2, 6)`` each scan's twist before and after its stamp
+            (:class:`~calib.motion.ScanMotion`).
+        offset_s: ``δt`` at the start (camera time minus LiDAR stamp).
+        estimate: fit ``δt``; ``False`` holds it at ``offset_s``.
+    """
+
+    scan: np.ndarray
+    twists: np.ndarray
+    offset_s: float = 0.0
+    estimate: bool = True
 
 
 def robust_weight(r2: torch.Tensor, loss: str, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -83,28 +119,36 @@ def robust_weight(r2: torch.Tensor, loss: str, scale: float) -> tuple[torch.Tens
     raise ValueError(f"unknown loss {loss!r} (cauchy, huber or squared)")
 
 
-def reprojection_jacobian(points_cam: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
-    """``∂π(K, exp(δ) · q) / ∂δ`` at ``δ = 0``: ``(*, N, 2, 6)`` for ``points_cam q (*, N, 3)``.
-
-    ``∂(exp(δ) q)/∂δ = [I | −[q]×]`` (translation first, as kornia's ``Se3``), chained with the
-    pinhole derivative ``[[fx/z, s/z, −(fx x + s y)/z²], [0, fy/z, −fy y/z²]]``.
-
-    Args:
-        points_cam: ``(*, N, 3)`` points in the camera frame (``z > 0``). K: ``(3, 3)``.
-    """
+def pinhole_jacobian(points_cam: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """``∂π(K, q) / ∂q = [[fx/z, s/z, −(fx x + s y)/z²], [0, fy/z, −fy y/z²]]``: ``(*, N, 2, 3)``
+    for ``points_cam q (*, N, 3)`` (``z > 0``) and ``K (3, 3)``."""
     q = torch.as_tensor(points_cam, dtype=torch.float64)
     K = torch.as_tensor(K, dtype=torch.float64)
     x, y, z = q.unbind(-1)
     fx, s, fy = K[0, 0], K[0, 1], K[1, 1]
     zero = torch.zeros_like(z)
-    d_pi = torch.stack(
+    return torch.stack(
         [
             torch.stack([fx / z, s / z, -(fx * x + s * y) / z**2], -1),
             torch.stack([zero, fy / z, -fy * y / z**2], -1),
         ],
         -2,
-    )  # (*, N, 2, 3)
-    one = torch.ones_like(z)
+    )
+
+
+def reprojection_jacobian(points_cam: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """``∂π(K, exp(δ) · q) / ∂δ`` at ``δ = 0``: ``(*, N, 2, 6)`` for ``points_cam q (*, N, 3)``.
+
+    ``∂(exp(δ) q)/∂δ = [I | −[q]×]`` (translation first, as kornia's ``Se3``), chained with
+    :func:`pinhole_jacobian`.
+
+    Args:
+        points_cam: ``(*, N, 3)`` points in the camera frame (``z > 0``). K: ``(3, 3)``.
+    """
+    q = torch.as_tensor(points_cam, dtype=torch.float64)
+    d_pi = pinhole_jacobian(q, K)  # (*, N, 2, 3)
+    x, y, z = q.unbind(-1)
+    zero, one = torch.zeros_like(z), torch.ones_like(z)
     d_q = torch.stack(  # [I | −[q]×], −[q]× = [[0, z, −y], [−z, 0, x], [y, −x, 0]]
         [
             torch.stack([one, zero, zero, zero, z, -y], -1),
@@ -116,13 +160,18 @@ def reprojection_jacobian(points_cam: torch.Tensor, K: torch.Tensor) -> torch.Te
     return d_pi @ d_q
 
 
-def _residuals(
-    T: torch.Tensor, points_lidar: torch.Tensor, uv_target: torch.Tensor, K: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """``π(K, T p) − ũ (N, 2)`` and the camera-frame points ``T p (N, 3)``."""
-    q = points_lidar @ T[:3, :3].T + T[:3, 3]
-    uvw = q @ K.T
-    return uvw[:, :2] / uvw[:, 2:3] - uv_target, q
+def _at_camera_time(
+    points: torch.Tensor, time: TimeModel | None, offset: float
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Points in the LiDAR frame at the camera's time ``(N, 3)`` and ``∂p/∂δt (N, 3)``
+    (``points`` unchanged and ``None`` without a time model)."""
+    if time is None:
+        return points, None
+    twists = torch.as_tensor(time.twists[:, 1 if offset >= 0 else 0], dtype=torch.float64)  # (F, 6)
+    A = se3_exp(-offset * twists)[torch.as_tensor(time.scan)]  # exp(−δt ξ_f) per point, (N, 4, 4)
+    p = torch.einsum("nij,nj->ni", A[:, :3, :3], points) + A[:, :3, 3]
+    xi = twists[torch.as_tensor(time.scan)]
+    return p, -(torch.linalg.cross(xi[:, 3:], p) + xi[:, :3])
 
 
 def refine_extrinsic(
@@ -132,12 +181,14 @@ def refine_extrinsic(
     K: np.ndarray,
     T_init: np.ndarray,
     config: RefineConfig = RefineConfig(),
+    time: TimeModel | None = None,
 ) -> Refinement:
-    """Minimise Eq. 4 over ``ΔT`` starting at ``T_init``.
+    """Minimise Eq. 4 over ``ΔT`` (and ``δt`` with ``time``) starting at ``T_init``.
 
     Args:
-        points_lidar: ``(N, 3)`` points. uv_target: ``(N, 2)`` matched pixels ``ũ_i``.
-        weights: ``(N,)`` non-negative ``s_i``. K: ``(3, 3)``. T_init: ``(4, 4)`` ``T⁰_cam_lidar``.
+        points_lidar: ``(N, 3)`` points (with ``time``: deskewed to their scan's stamp).
+        uv_target: ``(N, 2)`` matched pixels ``ũ_i``. weights: ``(N,)`` non-negative ``s_i``.
+        K: ``(3, 3)``. T_init: ``(4, 4)`` ``T⁰_cam_lidar``. time: the time offset's model.
 
     Raises:
         NumericalError: fewer than 6 usable correspondences, points behind the camera at the
@@ -152,40 +203,68 @@ def refine_extrinsic(
             f"expected points (N, 3), uv (N, 2), weights (N,); got {tuple(p.shape)}, "
             f"{tuple(target.shape)}, {tuple(s.shape)}"
         )
+    if time is not None and (time.scan.shape != (len(p),) or time.twists.shape[1:] != (2, 6)):
+        raise ValueError(
+            f"time model needs scan (N,) = ({len(p)},) and twists (F, 2, 6); got "
+            f"{time.scan.shape} and {time.twists.shape}"
+        )
     used = int(torch.count_nonzero(s > 0))
     if used < 6:
         raise NumericalError(f"refinement needs at least 6 weighted correspondences, got {used}")
     K = torch.as_tensor(np.asarray(K), dtype=f64)
     T = torch.as_tensor(np.asarray(T_init), dtype=f64)
+    offset = time.offset_s if time is not None else 0.0
+    n_params = 7 if time is not None and time.estimate else 6
 
-    def evaluate(T: torch.Tensor) -> tuple[float, torch.Tensor, torch.Tensor, torch.Tensor]:
-        r, q = _residuals(T, p, target, K)
+    def evaluate(T: torch.Tensor, offset: float) -> tuple[float, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Cost, residuals ``(N, 2)``, IRLS weights ``(N,)`` and the Jacobian ``(N, 2, n_params)``."""
+        points, d_offset = _at_camera_time(p, time, offset)
+        q = points @ T[:3, :3].T + T[:3, 3]
+        uvw = q @ K.T
+        r = uvw[:, :2] / uvw[:, 2:3] - target
         rho, w = robust_weight((r * r).sum(1), config.loss, config.loss_scale_px)
-        return float((s * rho).sum()), r, q, s * w
+        if bool((q[:, 2] <= 0).any()):
+            return math.inf, r, w, torch.empty(0)
+        J = reprojection_jacobian(q, K)
+        if n_params == 7:  # ∂π/∂δt = ∂π/∂q · R · ∂p/∂δt
+            J = torch.cat([J, pinhole_jacobian(q, K) @ (d_offset @ T[:3, :3].T)[:, :, None]], -1)
+        return float((s * rho).sum()), r, s * w, J
 
-    cost, r, q, w = evaluate(T)
-    if bool((q[:, 2] <= 0).any()) or not np.isfinite(cost):
+    cost, r, w, J = evaluate(T, offset)
+    if not math.isfinite(cost):
         raise NumericalError(
             "refinement: points lie behind the camera or the cost is not finite at the start"
         )
     initial_cost, lam, converged, iterations = cost, config.initial_damping, False, 0
     while iterations < config.max_iterations:
         iterations += 1
-        J = reprojection_jacobian(q, K)
         H = torch.einsum("n,nai,naj->ij", w, J, J)
         g = torch.einsum("n,nai,na->i", w, J, r)
         delta = -torch.linalg.solve(H + lam * torch.diag(torch.diag(H)), g)
-        T_new = se3_exp(delta) @ T
-        new_cost, r_new, q_new, w_new = evaluate(T_new)
-        if np.isfinite(new_cost) and new_cost < cost and bool((q_new[:, 2] > 0).all()):
-            T, cost, r, q, w, lam = T_new, new_cost, r_new, q_new, w_new, max(lam / 10, 1e-12)
+        T_new = se3_exp(delta[:6]) @ T
+        offset_new = offset + float(delta[6]) if n_params == 7 else offset
+        new_cost, r_new, w_new, J_new = evaluate(T_new, offset_new)
+        if math.isfinite(new_cost) and new_cost < cost:
+            T, offset, cost, r, w, J = T_new, offset_new, new_cost, r_new, w_new, J_new
+            lam = max(lam / 10, 1e-12)
         else:
             lam *= 10
-        if float(torch.linalg.norm(delta)) < config.step_tolerance:
+        # δt in seconds is small beside metres and radians: its step counts in milliseconds
+        step = delta * torch.tensor([1.0] * 6 + [1e3] * (n_params - 6), dtype=f64)
+        if float(torch.linalg.norm(step)) < config.step_tolerance:
             converged = True
             break
-    J = reprojection_jacobian(q, K)
     H = torch.einsum("n,nai,naj->ij", w, J, J)
-    dof = max(2 * used - 6, 1)
+    dof = max(2 * used - n_params, 1)
     covariance = torch.linalg.pinv(H) * float((w * (r * r).sum(1)).sum() / dof)
-    return Refinement(T.numpy(), covariance.numpy(), iterations, cost, initial_cost, converged, r.numpy())
+    return Refinement(
+        T.numpy(),
+        covariance[:6, :6].numpy(),
+        iterations,
+        cost,
+        initial_cost,
+        converged,
+        r.numpy(),
+        offset if time is not None else None,
+        math.sqrt(float(covariance[6, 6])) if n_params == 7 else None,
+    )

@@ -6,7 +6,14 @@ import torch
 from calib.errors import SupportnetError
 from calib.geometry import calibration_error, perturb, se3_exp
 from calib.projection import project_points, transform_points
-from calib.refine.solver import RefineConfig, refine_extrinsic, reprojection_jacobian, robust_weight
+from calib.motion import ScanMotion
+from calib.refine.solver import (
+    RefineConfig,
+    TimeModel,
+    refine_extrinsic,
+    reprojection_jacobian,
+    robust_weight,
+)
 from tests.conftest import KITTI_K, kitti_like_extrinsic
 
 
@@ -101,3 +108,49 @@ def test_too_few_or_impossible_correspondences_are_reported():
         refine_extrinsic(-points, np.zeros((10, 2)), np.ones(10), KITTI_K, T)
     with pytest.raises(ValueError, match="expected points"):
         refine_extrinsic(points, np.zeros((9, 2)), np.ones(10), KITTI_K, T)
+
+
+def moving_scans(offset_s: float, n_per_scan: int = 3000):
+    """Three scans of a car that speeds up and turns (so δt is not a translation), their points
+    deskewed to each stamp, and the exact pixels of those points at the camera's time."""
+    T_ref = kitti_like_extrinsic()
+    motions = [
+        ScanMotion(np.array([v, 0, 0, 0, 0, w]), np.array([v + 1, 0.2, 0, 0.01, 0, w + 0.1]))
+        for v, w in ((4.0, -0.4), (10.0, 0.0), (14.0, 0.5))
+    ]
+    points, scan, uv = [], [], []
+    for k, motion in enumerate(motions):
+        q = scene(n_per_scan, seed=10 + k)
+        points.append(q)
+        scan.append(np.full(n_per_scan, k))
+        uv.append(project(T_ref, motion.at(q, offset_s)))
+    twists = np.stack([np.stack([m.before, m.after]) for m in motions])
+    return T_ref, np.concatenate(points), np.concatenate(scan), twists, np.concatenate(uv)
+
+
+def test_exact_residuals_with_a_20ms_offset_recover_it_and_the_extrinsic():
+    """The issue's known answer: δt within 0.2 ms, the extrinsic within 1 mm / 0.01°."""
+    T_ref, points, scan, twists, uv = moving_scans(0.020)
+    T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(1))
+    result = refine_extrinsic(points, uv, np.ones(len(points)), KITTI_K, T_init, time=TimeModel(scan, twists))
+    error = calibration_error(result.T_cam_lidar, T_ref)
+    assert abs(result.time_offset_s - 0.020) < 2e-4
+    assert error.translation_cm < 0.1 and error.rotation_deg < 0.01
+    assert 0 < result.time_offset_std_s < 1e-3
+
+
+def test_a_fixed_offset_is_held_and_ignoring_it_biases_the_extrinsic():
+    T_ref, points, scan, twists, uv = moving_scans(0.020)
+    fixed = refine_extrinsic(
+        points, uv, np.ones(len(points)), KITTI_K, T_ref, time=TimeModel(scan, twists, 0.020, estimate=False)
+    )
+    assert fixed.time_offset_s == 0.020 and fixed.time_offset_std_s is None
+    assert calibration_error(fixed.T_cam_lidar, T_ref).translation_cm < 0.01
+    ignored = refine_extrinsic(points, uv, np.ones(len(points)), KITTI_K, T_ref)  # δt = 0 assumed
+    assert calibration_error(ignored.T_cam_lidar, T_ref).translation_cm > 5.0  # ~10 m/s x 20 ms
+
+
+def test_time_model_of_the_wrong_length_is_refused():
+    T_ref, points, scan, twists, uv = moving_scans(0.0, n_per_scan=10)
+    with pytest.raises(ValueError, match="time model"):
+        refine_extrinsic(points, uv, np.ones(len(points)), KITTI_K, T_ref, time=TimeModel(scan[:-1], twists))

@@ -1,0 +1,107 @@
+"""The LiDAR's motion around a scan, to move its points to another time (deskewing, time offset).
+
+A scan's points are measured over its sweep, each in the LiDAR frame of its own time
+``t_L + τ_i``, and the camera exposes at ``t_L + δt``. Between two odometry poses the LiDAR is
+taken to move along the SE(3) geodesic, at a constant body twist ``ξ = log(T_a⁻¹ T_b) / (t_b − t_a)``
+(piecewise-geodesic interpolation). A spline would give the motion a continuous acceleration,
+but over the ±50 ms that a sweep and a camera offset span a car or a tractor changes its twist
+by a few per cent, below what the residuals resolve, and the geodesic needs only the two poses
+either side of the stamp. With ``T_L0_L(t) = exp(t ξ)`` (``ξ`` the twist before the stamp for
+``t < 0``, after it for ``t ≥ 0``), a point ``p`` measured at ``τ`` lies at
+
+    ``q = T_L0_L(τ) p``               in the LiDAR frame at the stamp (deskewed), and
+    ``p(t) = T_L0_L(t)⁻¹ q``          in the LiDAR frame at time ``t``,
+
+whose derivative is ``dp(t)/dt = −ξ^ p(t) = −(ω × p(t) + v)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from calib.geometry import se3_exp, se3_log
+
+__all__ = ["ScanMotion", "motions_from_poses"]
+
+
+@dataclass(frozen=True)
+class ScanMotion:
+    """Body twists ``(v, ω)`` (m/s, rad/s, in the LiDAR frame; translation first, as
+    :func:`~calib.geometry.se3_exp`) of the LiDAR before and after a scan's stamp.
+
+    Attributes:
+        before: ``(6,)`` over the interval that ends at the stamp.
+        after: ``(6,)`` over the interval that starts at it.
+    """
+
+    before: np.ndarray
+    after: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("before", "after"):
+            twist = np.asarray(getattr(self, name), np.float64)
+            if twist.shape != (6,) or not np.isfinite(twist).all():
+                raise ValueError(f"ScanMotion.{name} must be a finite (6,) twist, got {twist.tolist()}")
+            object.__setattr__(self, name, twist)
+
+    @classmethod
+    def still(cls) -> ScanMotion:
+        """A LiDAR that does not move."""
+        return cls(np.zeros(6), np.zeros(6))
+
+    def twist(self, t: np.ndarray | float) -> np.ndarray:
+        """``(*, 6)`` the twist in force at times ``t (*)`` (seconds from the stamp)."""
+        t = np.asarray(t, np.float64)
+        return np.where(t[..., None] < 0, self.before, self.after)
+
+    def pose(self, t: np.ndarray | float) -> np.ndarray:
+        """``T_L0_L(t) (*, 4, 4)``: the LiDAR at times ``t (*)`` in its frame at the stamp."""
+        t = np.asarray(t, np.float64)
+        return se3_exp(torch.from_numpy(t[..., None] * self.twist(t))).numpy()
+
+    def deskew(self, points_lidar: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """``q = T_L0_L(τ) p``: points measured at their own times, in the LiDAR frame at the stamp.
+
+        Args:
+            points_lidar: ``(N, 3)``. times: ``(N,)`` seconds from the stamp.
+        """
+        T = self.pose(times)
+        return np.einsum("nij,nj->ni", T[:, :3, :3], points_lidar) + T[:, :3, 3]
+
+    def at(self, points_stamp: np.ndarray, t: float) -> np.ndarray:
+        """``p(t) = T_L0_L(t)⁻¹ q``: points of the stamp's frame ``(N, 3)`` in the LiDAR frame at ``t``."""
+        T = self.pose(t)
+        return (points_stamp - T[:3, 3]) @ T[:3, :3]
+
+    @property
+    def moving(self) -> bool:
+        return bool(np.any(self.before) or np.any(self.after))
+
+
+def motions_from_poses(T_world_lidar: np.ndarray, stamps: np.ndarray) -> list[ScanMotion]:
+    """Piecewise-geodesic twists of a trajectory, one :class:`ScanMotion` per pose.
+
+    The first pose's twist before it is the one after it, and the last's after it the one before.
+
+    Args:
+        T_world_lidar: ``(F, 4, 4)`` poses (odometry or ground truth), ``F ≥ 2``.
+        stamps: ``(F,)`` strictly increasing times in seconds.
+
+    Raises:
+        ValueError: fewer than two poses, or stamps that do not increase.
+    """
+    T = np.asarray(T_world_lidar, np.float64)
+    stamps = np.asarray(stamps, np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) < 2 or stamps.shape != (len(T),):
+        raise ValueError(f"need (F, 4, 4) poses, F >= 2, and (F,) stamps; got {T.shape} and {stamps.shape}")
+    gaps = np.diff(stamps)
+    if not (gaps > 0).all():
+        raise ValueError(f"stamps must increase strictly, got gaps {gaps.tolist()}")
+    relative = np.linalg.inv(T[:-1]) @ T[1:]
+    twists = se3_log(torch.from_numpy(relative)).numpy() / gaps[:, None]  # (F - 1, 6)
+    before = np.concatenate([twists[:1], twists])
+    after = np.concatenate([twists, twists[-1:]])
+    return [ScanMotion(b, a) for b, a in zip(before, after, strict=True)]
