@@ -5,8 +5,8 @@ import torch
 
 from calib.errors import SupportnetError
 from calib.geometry import calibration_error, perturb, se3_exp
-from calib.projection import project_points, transform_points
 from calib.motion import ScanMotion
+from calib.projection import project_points, transform_points
 from calib.refine.solver import (
     RefineConfig,
     TimeModel,
