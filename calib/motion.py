@@ -81,14 +81,18 @@ class ScanMotion:
         return bool(np.any(self.before) or np.any(self.after))
 
 
-def motions_from_poses(T_world_lidar: np.ndarray, stamps: np.ndarray) -> list[ScanMotion]:
+def motions_from_poses(T_world_lidar: np.ndarray, stamps: np.ndarray, span: int = 1) -> list[ScanMotion]:
     """Piecewise-geodesic twists of a trajectory, one :class:`ScanMotion` per pose.
 
+    With ``span = 1`` the twist after pose ``i`` is the geodesic to pose ``i + 1``; a longer span
+    takes it to pose ``i + span`` instead, which averages odometry noise over that many steps
+    (a pose error ``σ`` gives a speed error ``σ / (span Δt)``) at the cost of smoothing turns.
     The first pose's twist before it is the one after it, and the last's after it the one before.
 
     Args:
         T_world_lidar: ``(F, 4, 4)`` poses (odometry or ground truth), ``F ≥ 2``.
         stamps: ``(F,)`` strictly increasing times in seconds.
+        span: poses between the two ends of each geodesic (shortened near the ends).
 
     Raises:
         ValueError: fewer than two poses, or stamps that do not increase.
@@ -100,8 +104,17 @@ def motions_from_poses(T_world_lidar: np.ndarray, stamps: np.ndarray) -> list[Sc
     gaps = np.diff(stamps)
     if not (gaps > 0).all():
         raise ValueError(f"stamps must increase strictly, got gaps {gaps.tolist()}")
-    relative = np.linalg.inv(T[:-1]) @ T[1:]
-    twists = se3_log(torch.from_numpy(relative)).numpy() / gaps[:, None]  # (F - 1, 6)
-    before = np.concatenate([twists[:1], twists])
-    after = np.concatenate([twists, twists[-1:]])
-    return [ScanMotion(b, a) for b, a in zip(before, after, strict=True)]
+    if span < 1:
+        raise ValueError(f"span must be at least 1, got {span}")
+
+    def twist(a: int, b: int) -> np.ndarray:
+        relative = np.linalg.inv(T[a]) @ T[b]
+        return se3_log(torch.from_numpy(relative)).numpy() / (stamps[b] - stamps[a])
+
+    last = len(T) - 1
+    motions = []
+    for i in range(len(T)):
+        after = twist(i, min(i + span, last)) if i < last else None
+        before = twist(max(i - span, 0), i) if i > 0 else after
+        motions.append(ScanMotion(before, after if after is not None else before))
+    return motions

@@ -21,6 +21,7 @@ import numpy as np
 from calib.data.extrinsic_file import rigid_problem
 from calib.data.types import Frame, Sequence
 from calib.errors import ConfigError, DataError
+from calib.init.lidar_odometry import scan_motions
 from calib.init.motion_init import Stage1Config, initial_calibration, load_stage1_config
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
@@ -28,7 +29,7 @@ from calib.observability import weak_directions
 from calib.refine.contour_refine import contour_refine
 from calib.refine.frame_selection import contour_information, select_informative
 from calib.refine.global_search import global_search
-from calib.refine.passes import CalibrateConfig, load_calibrate_config, refine_passes
+from calib.refine.passes import CalibrateConfig, ScanTiming, frames_at, load_calibrate_config, refine_passes
 from calib.refine.tracking import OnlineState, departure, extrinsic_of
 from calib.results import CalibrationResult, OnlineEstimate
 from calib.support.source import SupportSource, UniformSupport
@@ -92,6 +93,19 @@ class Calibrator:
         informations = [contour_information(f.points, T_init, f.K, f.image_size) for f in loaded.values()]
         return [candidates[j] for j in select_informative(informations, count)], loaded
 
+    def _scan_timing(
+        self, seq: Sequence | FrameList[Frame], picks: list[int], frames: list[Frame]
+    ) -> tuple[ScanTiming | None, str]:
+        """How the used frames' points move to the camera's time (LiDAR odometry around each),
+        or ``None`` and why the points stay as measured."""
+        cfg = self.config.time_offset
+        if cfg.mode == "off":
+            return None, "not modelled (time_offset.mode: off): points as measured"
+        motions, why = scan_motions(seq, picks, cfg.neighbours)
+        if motions is None:
+            return None, f"not modelled, points as measured: {why}"
+        return ScanTiming(motions, cfg.initial_s, cfg.mode == "estimate", cfg.max_std_s), ""
+
     def calibrate(
         self,
         seq: Sequence | FrameList[Frame],
@@ -114,17 +128,24 @@ class Calibrator:
         T_init = _checked_extrinsic(T_init, "T_init")
         picks, loaded = self._pick_frames(seq, T_init)
         frames = [loaded[i] if i in loaded else seq[i] for i in picks]
+        timing, timing_note = self._scan_timing(seq, picks, frames)
+        # the coarse stages see the points at the camera's time under the initial δt
+        seen = (
+            frames
+            if timing is None
+            else frames_at(frames, timing.motions, timing.stamp_points(frames), timing.offset_s)
+        )
         coarse_starts: dict[str, np.ndarray] = {}  # other starts for the passes, by origin
         coarse: list[dict] = []
         if self.config.coarse.enabled:  # Stage 4, coarse: edge alignment where the matcher cannot reach
             for kind in self.config.coarse.scores:
-                search = global_search(frames, T_init, self.config.coarse, kind)
+                search = global_search(seen, T_init, self.config.coarse, kind)
                 coarse_starts[f"global ({kind})"] = search.T_cam_lidar
                 coarse += [{"stage": "global", "score": kind, **level} for level in search.levels]
         if self.config.contour.enabled:  # then the contour score over all six parameters at once
             refined = {}
             for origin, T_start in (coarse_starts or {"initial": T_init}).items():
-                climb = contour_refine(frames, T_start, self.config.contour)
+                climb = contour_refine(seen, T_start, self.config.contour)
                 coarse += [{"stage": "contour", "from": origin, **level} for level in climb.levels]
                 refined[f"{origin}, contour"] = climb.T_cam_lidar
             coarse_starts = refined
@@ -136,7 +157,17 @@ class Calibrator:
             self.config,
             np.random.default_rng(seed),
             alternatives=list(coarse_starts.values()),
+            timing=timing,
         )
+        if timing is not None:
+            timing_note = (
+                f"estimated from the motion of {len(frames)} frames"
+                if passes.time_offset_std_s is not None
+                else f"held at {timing.offset_s:g} s: on these frames its standard deviation passes "
+                f"{timing.max_std_s:g} s (too little motion, or too uniform to tell it from a translation)"
+                if timing.estimate
+                else f"held at {timing.offset_s:g} s (time_offset.mode: fixed); points moved to it"
+            )
         if coarse_starts:  # the passes went on from the start whose first pass ended best aligned
             origins = ["initial", *coarse_starts]
             coarse.append(
@@ -168,6 +199,10 @@ class Calibrator:
             passes=passes.passes,
             coarse=coarse,
             weak_directions=weak,
+            time_offset_s=passes.time_offset_s,
+            time_offset_std_s=passes.time_offset_std_s,
+            time_offset_note=timing_note,
+            time_offset_reference_s=_stamp_offset(frames),
         )
 
 
@@ -249,6 +284,19 @@ class OnlineCalibrator:
         self._next_start += online.step
         self._buffer = self._buffer[online.step :]
         return estimate
+
+
+def _stamp_offset(frames: list[Frame]) -> float | None:
+    """Camera stamp minus LiDAR stamp when every frame has both and they agree (a synthetic
+    world's true offset; on a real rig what its clocks claim), else ``None``."""
+    offsets = [
+        f.timestamp - f.lidar_timestamp
+        for f in frames
+        if f.timestamp is not None and f.lidar_timestamp is not None
+    ]
+    if len(offsets) != len(frames) or np.ptp(offsets) > 1e-6:
+        return None
+    return float(np.mean(offsets))
 
 
 def _checked_extrinsic(T: np.ndarray, name: str) -> np.ndarray:

@@ -52,7 +52,10 @@ class CalibrationResult:
         coarse: one dict per scale of the global coarse stage (σ, score before and after), or
             empty when it did not run.
         weak_directions: directions whose std passes the config's thresholds.
-        time_offset_s, time_offset_std_s: camera minus LiDAR time, when estimated (else ``None``).
+        time_offset_s, time_offset_std_s: camera minus LiDAR time ``δt`` the points were moved by
+            (``None``: not moved), and its std (``None``: held, not estimated).
+        time_offset_note: how ``δt`` was found, or why it was held.
+        time_offset_reference_s: the frames' camera stamp minus LiDAR stamp, where known.
     """
 
     T_cam_lidar: np.ndarray
@@ -68,6 +71,8 @@ class CalibrationResult:
     weak_directions: list[WeakDirection] = field(default_factory=list)
     time_offset_s: float | None = None
     time_offset_std_s: float | None = None
+    time_offset_note: str = ""
+    time_offset_reference_s: float | None = None
 
     @property
     def error(self) -> CalibrationError | None:
@@ -100,6 +105,8 @@ class CalibrationResult:
             "weak_directions": [w.to_dict() for w in self.weak_directions],
             "time_offset_s": self.time_offset_s,
             "time_offset_std_s": self.time_offset_std_s,
+            "time_offset_note": self.time_offset_note,
+            "time_offset_reference_s": self.time_offset_reference_s,
             "support": self.support,
             "frames": len(self.frame_indices),
             "frame_indices": list(self.frame_indices),

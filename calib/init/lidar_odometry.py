@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
+from collections.abc import Sequence as FrameList
 
 import numpy as np
 
-__all__ = ["drift", "lidar_odometry", "sensor_range"]
+from calib.data.types import Frame
+from calib.motion import ScanMotion, motions_from_poses
+
+__all__ = ["drift", "lidar_odometry", "scan_motions", "sensor_range"]
 
 
 def sensor_range(scans: list[np.ndarray], percentile: float = 99.5) -> float:
@@ -66,6 +70,59 @@ def lidar_odometry(
         odometry.register_frame(np.asarray(scan[:, :3], dtype=np.float64), stamps)
         poses.append(odometry.last_pose.copy())
     return np.stack(poses)
+
+
+def _stamp(frame: Frame) -> float | None:
+    return frame.lidar_timestamp if frame.lidar_timestamp is not None else frame.timestamp
+
+
+def scan_motions(
+    seq: FrameList[Frame], positions: Iterable[int], neighbours: int = 3, max_gap_s: float = 0.25
+) -> tuple[list[ScanMotion] | None, str]:
+    """The LiDAR's motion around each scan at ``positions`` of ``seq``: KISS-ICP over the scans
+    from ``neighbours`` before to ``neighbours`` after it (one run per stretch of overlapping
+    windows), and the geodesics ``neighbours`` scans either side
+    (:func:`~calib.motion.motions_from_poses` with that span: one scan's registration error is
+    spread over several).
+
+    Args:
+        seq: frames in time order (a :class:`~calib.data.types.Sequence` or a list).
+        positions: which frames need their motion.
+        max_gap_s: neighbours farther apart in time are not one drive.
+
+    Returns:
+        One :class:`~calib.motion.ScanMotion` per position and ``""``; or ``None`` and why not.
+    """
+    positions = [int(i) for i in positions]
+    if len(seq) < 2:
+        return None, "a single frame shows no motion"
+    stretches: list[list[int]] = []  # [first, last] scans of each odometry run
+    for i in sorted(positions):
+        first, last = max(i - neighbours, 0), min(i + neighbours, len(seq) - 1)
+        if stretches and first <= stretches[-1][1] + 1:
+            stretches[-1][1] = last
+        else:
+            stretches.append([first, last])
+    found: dict[int, ScanMotion] = {}
+    for first, last in stretches:
+        frames = [seq[j] for j in range(first, last + 1)]
+        stamps = [_stamp(f) for f in frames]
+        if any(t is None for t in stamps):
+            return None, "the frames have no time stamps"
+        gaps = np.diff(stamps)
+        if not ((gaps > 0) & (gaps <= max_gap_s)).all():
+            return (
+                None,
+                f"frames {first}-{last} are not consecutive scans (stamp gaps up to {gaps.max():.3g} s)",
+            )
+        scans = [f.points for f in frames]
+        times = [f.point_times for f in frames]
+        poses = lidar_odometry(
+            scans, times if all(t is not None for t in times) else None, max_range_m=sensor_range(scans)
+        )
+        motions = motions_from_poses(poses, np.asarray(stamps), span=neighbours)
+        found.update({first + k: m for k, m in enumerate(motions)})
+    return [found[i] for i in positions], ""
 
 
 def drift(estimate: np.ndarray, reference: np.ndarray) -> dict[str, float]:

@@ -45,6 +45,12 @@ class RefineConfig(BaseModel):
     max_iterations: int = Field(50, ge=1)
     step_tolerance: float = Field(1e-10, gt=0, description="stop when ‖δ‖ (m, rad) falls below this")
     initial_damping: float = Field(1e-3, gt=0, description="Levenberg–Marquardt λ at the start")
+    noise_floor_px: float = Field(
+        0.5,
+        gt=0,
+        description="the residual scale the time offset's std assumes at least (exact residuals "
+        "would make any δt look certain, however weakly the motion excites it)",
+    )
 
 
 @dataclass(frozen=True)
@@ -59,8 +65,9 @@ class Refinement:
         converged: the step fell below the tolerance before ``max_iterations``.
         residuals: ``(N, 2)`` pixels ``π(K, T p_i) − ũ_i`` at the estimate.
         time_offset_s: ``δt`` at the estimate, with a :class:`TimeModel` (else ``None``).
-        time_offset_std_s: its standard deviation (the ``δt`` entry of the 7x7 covariance,
-            whose extrinsic block is ``covariance``); ``None`` when ``δt`` was held fixed.
+        time_offset_std_s: its standard deviation with the extrinsic marginalised out (residual
+            scale at least ``config.noise_floor_px``; ``inf`` where the motion cannot tell ``δt``
+            from a translation); ``None`` when ``δt`` was held fixed.
     """
 
     T_cam_lidar: np.ndarray
@@ -256,7 +263,13 @@ def refine_extrinsic(
             break
     H = torch.einsum("n,nai,naj->ij", w, J, J)
     dof = max(2 * used - n_params, 1)
-    covariance = torch.linalg.pinv(H) * float((w * (r * r).sum(1)).sum() / dof)
+    variance = float((w * (r * r).sum(1)).sum() / dof)
+    covariance = torch.linalg.pinv(H) * variance
+    offset_std = None
+    if n_params == 7:  # δt's information once the extrinsic is marginalised out (Schur complement)
+        information = float(H[6, 6] - H[6, :6] @ torch.linalg.lstsq(H[:6, :6], H[:6, 6:]).solution[:, 0])
+        scale = max(variance, config.noise_floor_px**2)
+        offset_std = math.sqrt(scale / information) if information > 1e-12 * float(H[6, 6]) else math.inf
     return Refinement(
         T.numpy(),
         covariance[:6, :6].numpy(),
@@ -266,5 +279,5 @@ def refine_extrinsic(
         converged,
         r.numpy(),
         offset if time is not None else None,
-        math.sqrt(float(covariance[6, 6])) if n_params == 7 else None,
+        offset_std,
     )
