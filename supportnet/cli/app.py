@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 
 from calib.errors import ConfigError, SupportnetError
-from supportnet.cli.options import Camera, Overwrite, in_range, seed_of
+from supportnet.cli.options import Camera, Overwrite, in_range, seed_of, time_offset_setting
 
 app = typer.Typer(
     name="supportnet",
@@ -260,6 +260,13 @@ def calibrate(
             "uncertainty and a drift alarm, per window in CSV/JSON and a plot.",
         ),
     ] = False,
+    time_offset: Annotated[
+        str | None,
+        typer.Option(
+            help="Camera-LiDAR time offset: off, fixed:MS (deskew and move the points MS after each "
+            "scan's stamp) or estimate (fit it as a seventh parameter); default: the config's.",
+        ),
+    ] = None,
     camera: Camera = None,
     overwrite: Overwrite = False,
 ) -> None:
@@ -272,6 +279,10 @@ def calibrate(
             "--runs", "--online calibrates one stream from one start; run it again with another --seed"
         )
     cfg = load_calibrate_config(config)
+    if time_offset is not None:
+        cfg = cfg.model_copy(update={"time_offset": time_offset_setting(time_offset, cfg.time_offset)})
+    if online and cfg.time_offset.mode != "off":
+        raise ConfigError("--time-offset", "online calibration does not model the time offset yet; use off")
     if online:
         from supportnet.cli.cmd_online import run_online
 

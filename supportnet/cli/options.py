@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from calib.errors import ConfigError
 from calib.seeds import check_seed
 
-__all__ = ["Camera", "Overwrite", "in_range", "seed_of"]
+if TYPE_CHECKING:  # the CLI imports torch only when a command runs
+    from calib.refine.passes import TimeOffsetConfig
+
+__all__ = ["Camera", "Overwrite", "in_range", "seed_of", "time_offset_setting"]
 
 Overwrite = Annotated[
     bool,
@@ -41,3 +44,21 @@ def in_range(option: str, low: float, high: float) -> Callable[[float | None], f
 def seed_of(option: str = "--seed") -> Callable[[int], int]:
     """A typer callback refusing a seed outside ``[0, 2³²)`` with one line naming ``option``."""
     return lambda value: check_seed(value, option)
+
+
+def time_offset_setting(text: str, base: TimeOffsetConfig) -> TimeOffsetConfig:
+    """``--time-offset``: ``off``, ``estimate`` or ``fixed:MS`` (milliseconds, -1000 to 1000)
+    applied to the config's ``time_offset`` group."""
+    if text in ("off", "estimate"):
+        return base.model_copy(update={"mode": text})
+    if text.startswith("fixed:"):
+        try:
+            ms = float(text.removeprefix("fixed:"))
+        except ValueError:
+            ms = float("nan")
+        if not -1000 <= ms <= 1000:  # False for NaN
+            raise ConfigError(
+                "--time-offset", f"fixed:MS takes milliseconds from -1000 to 1000, got {text!r}"
+            )
+        return base.model_copy(update={"mode": "fixed", "initial_s": ms / 1000})
+    raise ConfigError("--time-offset", f"{text!r} is not off, estimate or fixed:MS")

@@ -133,3 +133,23 @@ def test_run_synth_refuses_before_any_work(tmp_path, arguments, message):
         run_synth(**{"world": "urban", "frames": 1, "seed": 0, "out": tmp_path / "out", **arguments})
     assert str(info.value) == message
     assert not (tmp_path / "out").exists()
+
+
+def test_time_offset_option_parses_its_three_forms_and_refuses_others():
+    from calib.refine.passes import TimeOffsetConfig
+    from supportnet.cli.options import time_offset_setting
+
+    base = TimeOffsetConfig()
+    assert time_offset_setting("estimate", base).mode == "estimate"
+    fixed = time_offset_setting("fixed:-20", base)
+    assert (fixed.mode, fixed.initial_s) == ("fixed", -0.02)
+    for bad in ("fixed:nan", "fixed:2000", "fixed:", "sometimes"):
+        with pytest.raises(ConfigError, match="--time-offset"):
+            time_offset_setting(bad, base)
+
+
+def test_time_offset_option_on_the_command_line_is_refused_with_one_line(tmp_path):
+    done = run(
+        "calibrate", "--data", tmp_path, "--out", tmp_path / "o", "--time-offset", "sometimes", cwd=tmp_path
+    )
+    assert done.returncode == 2 and "--time-offset" in done.stderr and "Traceback" not in done.stderr
