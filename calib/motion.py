@@ -24,7 +24,7 @@ import torch
 
 from calib.geometry import se3_exp, se3_log
 
-__all__ = ["ScanMotion", "motions_from_poses"]
+__all__ = ["ScanMotion", "motions_from_poses", "twist_spread"]
 
 
 @dataclass(frozen=True)
@@ -118,3 +118,18 @@ def motions_from_poses(T_world_lidar: np.ndarray, stamps: np.ndarray, span: int 
         before = twist(max(i - span, 0), i) if i > 0 else after
         motions.append(ScanMotion(before, after if after is not None else before))
     return motions
+
+
+def twist_spread(motions: list[ScanMotion]) -> tuple[float, float]:
+    """How much the motion differs between scans: the RMS distance of each scan's velocity
+    (m/s) and angular velocity (rad/s) from their means, each scan's twist taken as the mean of
+    its two sides.
+
+    A time offset moves every scan's points by ``δt`` times its twist; the part common to all
+    scans is a fixed transform that the extrinsic absorbs, so only this spread tells ``δt`` apart.
+    """
+    twists = np.stack([(m.before + m.after) / 2 for m in motions])
+    deviation = twists - twists.mean(0)
+    speed = float(np.sqrt((deviation[:, :3] ** 2).sum(1).mean()))
+    turn = float(np.sqrt((deviation[:, 3:] ** 2).sum(1).mean()))
+    return speed, turn

@@ -14,6 +14,7 @@ window on a stream and fuses the windows into a running estimate with a drift al
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from collections.abc import Sequence as FrameList
 
 import numpy as np
@@ -25,6 +26,7 @@ from calib.init.lidar_odometry import scan_motions
 from calib.init.motion_init import Stage1Config, initial_calibration, load_stage1_config
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
+from calib.motion import ScanMotion, twist_spread
 from calib.observability import weak_directions
 from calib.refine.contour_refine import contour_refine
 from calib.refine.frame_selection import contour_information, select_informative
@@ -94,23 +96,43 @@ class Calibrator:
         return [candidates[j] for j in select_informative(informations, count)], loaded
 
     def _scan_timing(
-        self, seq: Sequence | FrameList[Frame], picks: list[int], frames: list[Frame]
+        self,
+        seq: Sequence | FrameList[Frame],
+        picks: list[int],
+        frames: list[Frame],
+        known: Mapping[int, ScanMotion] | None,
     ) -> tuple[ScanTiming | None, str]:
-        """How the used frames' points move to the camera's time (LiDAR odometry around each),
-        or ``None`` and why the points stay as measured."""
+        """How the used frames' points move to the camera's time (``known`` motions, else LiDAR
+        odometry around each), or ``None`` and why the points stay as measured."""
         cfg = self.config.time_offset
         if cfg.mode == "off":
             return None, "not modelled (time_offset.mode: off): points as measured"
-        motions, why = scan_motions(seq, picks, cfg.neighbours)
-        if motions is None:
-            return None, f"not modelled, points as measured: {why}"
-        return ScanTiming(motions, cfg.initial_s, cfg.mode == "estimate", cfg.max_std_s), ""
+        if known is not None:
+            missing = [i for i in picks if i not in known]
+            if missing:
+                raise DataError("motions", f"have no motion for the frames at positions {missing}")
+            motions = [known[i] for i in picks]
+        else:
+            motions, why = scan_motions(seq, picks, cfg.neighbours)
+            if motions is None:
+                return None, f"not modelled, points as measured: {why}"
+        estimate, note = cfg.mode == "estimate", ""
+        speed, turn = twist_spread(motions)
+        if estimate and speed < cfg.min_speed_spread_mps and turn < cfg.min_turn_spread_radps:
+            estimate = False
+            note = (
+                f"held at {cfg.initial_s:g} s: the frames' motion varies too little to tell it from a "
+                f"translation (speed spread {speed:.2f} m/s, turn-rate spread {turn:.3f} rad/s; needs "
+                f"{cfg.min_speed_spread_mps:g} or {cfg.min_turn_spread_radps:g})"
+            )
+        return ScanTiming(motions, cfg.initial_s, estimate, cfg.max_std_s), note
 
     def calibrate(
         self,
         seq: Sequence | FrameList[Frame],
         T_init: np.ndarray | None = None,
         seed: int | tuple[int, ...] = 0,
+        motions: Mapping[int, ScanMotion] | None = None,
     ) -> CalibrationResult:
         """Calibrate ``seq`` (a :class:`Sequence` or a list of frames sharing one ``K``).
 
@@ -119,6 +141,8 @@ class Calibrator:
                 spread evenly, or the most informative of ``candidates`` times as many).
             T_init: ``(4, 4)`` initial ``T_cam_lidar``; ``None``: Stage 1 from motion.
             seed: of the correspondence sampling (an int or a tuple, as numpy seeds take).
+            motions: the LiDAR's motion around each frame by position (from an INS, or a
+                simulator's trajectory), used for the time offset instead of LiDAR odometry.
         """
         start = time.perf_counter()
         if T_init is None:
@@ -128,7 +152,7 @@ class Calibrator:
         T_init = _checked_extrinsic(T_init, "T_init")
         picks, loaded = self._pick_frames(seq, T_init)
         frames = [loaded[i] if i in loaded else seq[i] for i in picks]
-        timing, timing_note = self._scan_timing(seq, picks, frames)
+        timing, timing_note = self._scan_timing(seq, picks, frames, motions)
         # the coarse stages see the points at the camera's time under the initial δt
         seen = (
             frames
@@ -159,7 +183,7 @@ class Calibrator:
             alternatives=list(coarse_starts.values()),
             timing=timing,
         )
-        if timing is not None:
+        if timing is not None and not timing_note:
             timing_note = (
                 f"estimated from the motion of {len(frames)} frames"
                 if passes.time_offset_std_s is not None

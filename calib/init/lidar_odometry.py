@@ -76,6 +76,15 @@ def _stamp(frame: Frame) -> float | None:
     return frame.lidar_timestamp if frame.lidar_timestamp is not None else frame.timestamp
 
 
+def _above_ground(points_lidar: np.ndarray, clearance_m: float = 0.3) -> np.ndarray:
+    """``(N,)`` bool: points more than ``clearance_m`` above the scan's lowest (5th percentile)
+    height, the LiDAR's z pointing up. A rotating LiDAR lays the same rings on flat ground at every
+    pose, and they hold a short odometry run still: on the synthetic vineyard KISS-ICP reads
+    −0.1 to 0.2 m/s for 1.19 with them, 1.0–1.2 without."""
+    z = points_lidar[:, 2]
+    return z > np.percentile(z, 5) + clearance_m
+
+
 def scan_motions(
     seq: FrameList[Frame], positions: Iterable[int], neighbours: int = 3, max_gap_s: float = 0.25
 ) -> tuple[list[ScanMotion] | None, str]:
@@ -115,8 +124,12 @@ def scan_motions(
                 None,
                 f"frames {first}-{last} are not consecutive scans (stamp gaps up to {gaps.max():.3g} s)",
             )
-        scans = [f.points for f in frames]
-        times = [f.point_times for f in frames]
+        above = [_above_ground(f.points) for f in frames]
+        scans = [f.points[keep] for f, keep in zip(frames, above, strict=True)]
+        times = [
+            None if f.point_times is None else f.point_times[keep]
+            for f, keep in zip(frames, above, strict=True)
+        ]
         poses = lidar_odometry(
             scans, times if all(t is not None for t in times) else None, max_range_m=sensor_range(scans)
         )

@@ -70,6 +70,15 @@ class TimeOffsetConfig(BaseModel):
         description="a fitted δt whose standard deviation passes this is not observable on these "
         "frames (too little motion, or too uniform to tell from a translation): it is held at initial_s",
     )
+    min_speed_spread_mps: float = Field(
+        2.0,
+        gt=0,
+        description="δt is estimated only when the used frames' velocities spread this much (RMS) "
+        "or their turn rates min_turn_spread_radps: a motion common to all frames makes δt a "
+        "fixed transform. High, because short-window odometry misreads speed (up to 1.5 m/s on "
+        "the synthetic street) while it reads turn rates within 0.01 rad/s",
+    )
+    min_turn_spread_radps: float = Field(0.1, gt=0, description="see min_speed_spread_mps")
     neighbours: int = Field(
         3,
         ge=1,

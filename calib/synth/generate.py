@@ -162,16 +162,18 @@ class Synthesizer:
         )
         return SyntheticFrame(frame, scan.instance, T_stamp)
 
-    def frames(self, workers: int = 1) -> Iterator[SyntheticFrame]:
-        """Every frame in order; ``workers > 1`` renders them in that many forked processes
-        (frames depend only on the seed and their index, so the bytes do not change)."""
-        if workers <= 1 or self.n_frames < 2:
-            yield from map(self.render, range(self.n_frames))
+    def frames(self, workers: int = 1, indices: range | None = None) -> Iterator[SyntheticFrame]:
+        """Every frame (or those of ``indices``) in order; ``workers > 1`` renders them in that
+        many forked processes (frames depend only on the seed and their index, so the bytes do
+        not change)."""
+        indices = range(self.n_frames) if indices is None else indices
+        if workers <= 1 or len(indices) < 2:
+            yield from map(self.render, indices)
             return
         global _WORKER_SYNTH
         _WORKER_SYNTH = self
         with multiprocessing.get_context("fork").Pool(workers, initializer=_quiet_worker) as pool:
-            yield from pool.imap(_render_in_worker, range(self.n_frames), chunksize=2)
+            yield from pool.imap(_render_in_worker, indices, chunksize=2)
 
     def meta(self) -> dict:
         """What ``meta.json`` records: world, seed, sensors, ground truth, offsets."""

@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from calib.geometry import se3_exp
-from calib.motion import ScanMotion, motions_from_poses
+from calib.motion import ScanMotion, motions_from_poses, twist_spread
 
 
 def driving(speed: float = 8.0, yaw_rate: float = 0.3) -> np.ndarray:
@@ -76,3 +76,13 @@ def test_bad_inputs_are_refused_with_the_reason():
         motions_from_poses(np.eye(4)[None], np.zeros(1))
     with pytest.raises(ValueError, match="increase"):
         motions_from_poses(np.stack([np.eye(4)] * 3), np.array([0.0, 0.1, 0.1]))
+
+
+def test_twist_spread_known_answer():
+    """Two scans at 6 and 10 m/s, one turning at 0.2 rad/s: 2 m/s and 0.1 rad/s from the means."""
+    motions = [
+        ScanMotion(driving(6.0, 0.0), driving(6.0, 0.0)),
+        ScanMotion(driving(10.0, 0.2), driving(10.0, 0.2)),
+    ]
+    assert twist_spread(motions) == pytest.approx((2.0, 0.1))
+    assert twist_spread([ScanMotion(driving(8.0, 0.3), driving(8.0, 0.3))] * 4) == (0.0, 0.0)

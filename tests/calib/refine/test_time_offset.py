@@ -4,6 +4,7 @@ with the extrinsic where the motion tells it apart, held where it does not."""
 from dataclasses import replace
 
 import numpy as np
+import pytest
 import torch
 
 from calib.data.types import Frame
@@ -113,3 +114,15 @@ def test_scan_motions_say_why_they_cannot_be_had():
     spaced = [replace(f, timestamp=10.0 * k) for k, f in enumerate(frames)]
     motions, why = scan_motions(spaced, [1])
     assert motions is None and "not consecutive" in why
+
+
+def test_known_motions_must_cover_every_used_frame():
+    from calib.errors import DataError
+    from calib.pipeline import Calibrator
+    from calib.refine.passes import load_calibrate_config
+
+    base = load_calibrate_config()
+    config = base.model_copy(update={"time_offset": base.time_offset.model_copy(update={"mode": "estimate"})})
+    frames = [_frame(k) for k in range(3)]
+    with pytest.raises(DataError, match=r"no motion for the frames at positions \[1, 2\]"):
+        Calibrator(config=config).calibrate(frames, T_TRUE, motions={0: ScanMotion.still()})

@@ -1,0 +1,169 @@
+"""The camera–LiDAR time offset ``δt`` (issue 21) on full-resolution synthetic drives that turn.
+
+Each world renders a stretch of its drive that holds a turn, at real pixel scale (bench_real's
+cameras), with its default camera offset (urban 5 ms at 8 m/s with motion-distorted scans,
+vineyard 20 ms at 1.2 m/s) or those of ``--offsets-ms``:
+
+- urban frames 25–70: straight street, a 0.7 rad/s turn (frames ~37–57), straight again;
+- vineyard frames 55–105: the end of a row and the 1.0 rad/s headland turn (frames ~70–95).
+
+Each run draws a start of 10 cm / 2° (bench_real's draws, ``--level``) and calibrates it with
+the packaged config (10 of the stretch's frames, by information) three ways:
+
+- ``off``: the points as measured (``time_offset.mode: off``, what Stage 4 did before);
+- ``odometry``: ``--time-offset estimate``, the LiDAR's motion from KISS-ICP around each frame;
+- ``true motion``: estimate with the world's own trajectory as the motion, which separates the
+  odometry's error from the method's.
+
+A run succeeds when it ends within 2 cm and 0.2° (the issue's target); the table gives median
+and 90th-percentile errors, the ``δt`` error and the share of runs within 1 ms. Prints a table
+and writes ``benchmarks/results/bench_time_offset.json``.
+
+    .venv/bin/python benchmarks/bench_time_offset.py [--runs 4] [--worlds urban,vineyard]
+        [--offsets-ms default|-50,-20,0,5,20,50] [--level 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+import zlib
+
+import numpy as np
+import torch
+from bench_real import LEVELS, SYNTH_CAMERAS, draw_start
+from results_io import save_results
+from rich.console import Console
+
+from calib.geometry import calibration_error
+from calib.motion import motions_from_poses
+from calib.pipeline import Calibrator
+from calib.refine.passes import load_calibrate_config
+from calib.synth.generate import Synthesizer
+from calib.synth.synth_config import load_synth_config
+
+STRETCHES = {"urban": range(25, 70), "vineyard": range(55, 105)}
+SEED = 301
+"""Unseen: training uses small seeds, bench_check 101–104, bench_real 201–202."""
+VARIANTS = ("off", "odometry", "true motion")
+SUCCESS = (2.0, 0.2)
+
+console = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def render(world: str, offset_s: float | None) -> tuple[list, np.ndarray, dict, float]:
+    """The stretch's frames, the reference extrinsic, the true motion by position, and δt."""
+    overrides = {} if offset_s is None else {"timing": {"camera_offset_s": offset_s}}
+    config = load_synth_config(world, camera=SYNTH_CAMERAS[world], **overrides)
+    stretch = STRETCHES[world]
+    synth = Synthesizer(config, stretch.stop, seed=SEED)
+    start = time.perf_counter()
+    frames = [item.frame for item in synth.frames(workers=2, indices=stretch)]
+    console.print(f"{world}: {len(frames)} frames rendered in {time.perf_counter() - start:.0f} s")
+    stamps = np.array(stretch) / config.timing.rate_hz
+    motions = motions_from_poses(synth.world.drive.lidar_poses(stamps), stamps)
+    return frames, synth.T_cam_lidar, dict(enumerate(motions)), config.timing.camera_offset_s
+
+
+def one_run(frames, T_ref, truth_motions, offset_s, variant, level, run) -> dict:
+    cm, deg = LEVELS[level]
+    generator = torch.Generator().manual_seed(zlib.crc32(f"dt/{level}/{run}".encode()))
+    T_init = draw_start(T_ref, cm, deg, generator, False)
+    base = load_calibrate_config()
+    mode = "off" if variant == "off" else "estimate"
+    config = base.model_copy(update={"time_offset": base.time_offset.model_copy(update={"mode": mode})})
+    start = time.perf_counter()
+    result = Calibrator(config=config).calibrate(
+        frames, T_init, seed=run, motions=truth_motions if variant == "true motion" else None
+    )
+    error = calibration_error(result.T_cam_lidar, T_ref)
+    dt = result.time_offset_s
+    return {
+        "translation_cm": error.translation_cm,
+        "rotation_deg": error.rotation_deg,
+        "time_offset_ms": None if dt is None else 1e3 * dt,
+        "time_offset_error_ms": None if dt is None else 1e3 * (dt - offset_s),
+        "time_offset_std_ms": None if result.time_offset_std_s is None else 1e3 * result.time_offset_std_s,
+        "note": result.time_offset_note,
+        "seconds": time.perf_counter() - start,
+    }
+
+
+def summary(runs: list[dict]) -> dict:
+    cm = np.array([r["translation_cm"] for r in runs])
+    deg = np.array([r["rotation_deg"] for r in runs])
+    dt = np.array([abs(r["time_offset_error_ms"]) for r in runs if r["time_offset_error_ms"] is not None])
+    return {
+        "runs": len(runs),
+        "success": float(np.mean((cm <= SUCCESS[0]) & (deg <= SUCCESS[1]))),
+        "cm_median": float(np.median(cm)),
+        "cm_p90": float(np.percentile(cm, 90)),
+        "deg_median": float(np.median(deg)),
+        "deg_p90": float(np.percentile(deg, 90)),
+        "dt_error_ms_median": float(np.median(dt)) if len(dt) else None,
+        "dt_error_ms_p90": float(np.percentile(dt, 90)) if len(dt) else None,
+        "dt_within_1ms": float(np.mean(dt <= 1.0)) if len(dt) else None,
+        "seconds_median": float(np.median([r["seconds"] for r in runs])),
+    }
+
+
+def _f(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--runs", type=int, default=4)
+    parser.add_argument("--worlds", default="urban,vineyard")
+    parser.add_argument("--offsets-ms", default="default", help="default, or comma-separated milliseconds")
+    parser.add_argument("--level", default="2", choices=sorted(LEVELS))
+    parser.add_argument("--variants", default=",".join(VARIANTS))
+    args = parser.parse_args()
+    offsets = [None] if args.offsets_ms == "default" else [float(v) / 1e3 for v in args.offsets_ms.split(",")]
+    variants = args.variants.split(",")
+    rows = []
+    for world in args.worlds.split(","):
+        for offset in offsets:
+            frames, T_ref, truth, offset_s = render(world, offset)
+            for variant in variants:
+                runs = []
+                for run in range(args.runs):
+                    runs.append(one_run(frames, T_ref, truth, offset_s, variant, args.level, run))
+                    r = runs[-1]
+                    console.print(
+                        f"{world} {1e3 * offset_s:g} ms {variant} run {run}: {r['translation_cm']:.2f} cm "
+                        f"{r['rotation_deg']:.3f}°, δt {_f(r['time_offset_ms'], '.2f')} ms "
+                        f"± {_f(r['time_offset_std_ms'], '.2f')} ({r['seconds']:.0f} s) {r['note']}"
+                    )
+                rows.append(
+                    {
+                        "world": world,
+                        "offset_ms": 1e3 * offset_s,
+                        "variant": variant,
+                        **summary(runs),
+                        "per_run": runs,
+                    }
+                )
+    print(
+        f"{'world':9} {'δt ms':>6} {'variant':12} {'runs':>4} {'success':>7} {'cm med':>7} {'cm p90':>7} "
+        f"{'° med':>6} {'° p90':>6} {'|δt err| med':>12} {'p90':>6} {'≤1 ms':>6} {'s':>5}"
+    )
+    for row in rows:
+        print(
+            f"{row['world']:9} {row['offset_ms']:6g} {row['variant']:12} {row['runs']:4d} "
+            f"{row['success']:7.0%} "
+            f"{row['cm_median']:7.2f} {row['cm_p90']:7.2f} {row['deg_median']:6.3f} {row['deg_p90']:6.3f} "
+            f"{_f(row['dt_error_ms_median'], '12.2f')} {_f(row['dt_error_ms_p90'], '6.2f')} "
+            f"{_f(row['dt_within_1ms'], '6.0%')} {row['seconds_median']:5.0f}"
+        )
+    out = save_results(
+        "bench_time_offset", {"machine": platform.machine(), "level": args.level, "seed": SEED, "rows": rows}
+    )
+    console.print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
