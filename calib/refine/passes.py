@@ -57,11 +57,13 @@ class TimeOffsetConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     mode: Literal["off", "fixed", "estimate"] = Field(
-        "off",
+        "estimate",
         description="off: points as measured; fixed: deskewed and moved to initial_s after each "
-        "stamp; estimate: δt fitted as a seventh parameter from there. Off by default: on our "
-        "synthetic worlds KISS-ICP over a few scans misreads the speed (urban 7-11.5 m/s for 8, "
-        "vineyard about 0 for 1.2: the rows alias), and a wrong motion moves the points wrongly",
+        "stamp; estimate: from there δt is fitted as a seventh parameter where the frames' motion "
+        "varies enough to tell it from a translation (else held at initial_s, and said so). Needs "
+        "consecutive time-stamped scans around the used frames (LiDAR odometry); without them the "
+        "points stay as measured, and the result says why. Calibrator only: the online windows "
+        "do not model δt yet",
     )
     initial_s: float = Field(0.0, ge=-1, le=1, description="δt to start from (estimate) or to hold (fixed)")
     max_std_s: float = Field(

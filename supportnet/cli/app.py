@@ -72,6 +72,23 @@ def synth(
             "(urban 1242x375, vineyard 960x540); replaces the camera of --config too.",
         ),
     ] = False,
+    camera_offset_ms: Annotated[
+        float | None,
+        typer.Option(
+            help="Camera exposure minus LiDAR stamp in ms, -1000 to 1000 (default: the world's, "
+            "urban 5, vineyard 20).",
+            callback=in_range("--camera-offset-ms", -1000, 1000),
+        ),
+    ] = None,
+    motion_distortion: Annotated[
+        bool | None,
+        typer.Option(
+            "--motion-distortion/--no-motion-distortion",
+            help="Cast each beam from the pose at its own time and write per-point times "
+            "(default: the world's; urban on, vineyard off).",
+            show_default=False,
+        ),
+    ] = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Write a synthetic sequence with ground truth: images, scans, point and pixel labels,
@@ -92,6 +109,8 @@ def synth(
         drift=parse_drift(drift),
         fmt=fmt,
         small=small,
+        camera_offset_ms=camera_offset_ms,
+        motion_distortion=motion_distortion,
     )
 
 
@@ -281,8 +300,10 @@ def calibrate(
     cfg = load_calibrate_config(config)
     if time_offset is not None:
         cfg = cfg.model_copy(update={"time_offset": time_offset_setting(time_offset, cfg.time_offset)})
-    if online and cfg.time_offset.mode != "off":
-        raise ConfigError("--time-offset", "online calibration does not model the time offset yet; use off")
+    if online and time_offset not in (None, "off"):
+        raise ConfigError(
+            "--time-offset", "online calibration does not model the time offset yet; leave it out"
+        )
     if online:
         from supportnet.cli.cmd_online import run_online
 

@@ -64,6 +64,8 @@ def run_synth(
     drift: tuple[float, float] = (0.0, 0.0),
     fmt: str = "kitti",
     small: bool = False,
+    camera_offset_ms: float | None = None,
+    motion_distortion: bool | None = None,
 ) -> Path:
     """Generate ``out/sequences/<sequence>`` (and ``out/poses/<sequence>.txt``) atomically, or
     with ``fmt="bag"`` the same frames as a ROS 2 bag folder ``out/<sequence>_bag`` (image,
@@ -72,6 +74,8 @@ def run_synth(
     Other sequences already in ``out`` are kept, so several seeds can share one dataset root.
     The packaged worlds render at real pixel scale (urban 1242x375, vineyard 960x540); ``small``
     renders 624x188 instead (:data:`~calib.synth.synth_config.SMALL_CAMERA`, ``--small``).
+    ``camera_offset_ms`` (camera exposure minus LiDAR stamp) and ``motion_distortion`` (each
+    beam cast from the pose at its own time, with per-point times written) replace the world's.
 
     Returns:
         The sequence folder (or the bag folder).
@@ -95,7 +99,12 @@ def run_synth(
         raise DataError(
             pose_file, f"already exists without {seq_dir}; remove it or choose another --sequence"
         )
-    cfg = load_synth_config(world, config, small=small)
+    if camera_offset_ms is not None and not -1000 <= camera_offset_ms <= 1000:  # False for NaN
+        raise ConfigError("--camera-offset-ms", f"must be from -1000 to 1000, got {camera_offset_ms}")
+    timing = {} if camera_offset_ms is None else {"camera_offset_s": camera_offset_ms / 1000}
+    if motion_distortion is not None:
+        timing["motion_distortion"] = motion_distortion
+    cfg = load_synth_config(world, config, small=small, **({"timing": timing} if timing else {}))
     start = time.perf_counter()
     synth = Synthesizer(cfg, frames, seed, drift)
     sweep_leftovers(out, f"synth-{sequence}")

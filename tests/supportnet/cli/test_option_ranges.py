@@ -126,6 +126,7 @@ def test_parse_drift_takes_sizes_up_to_the_bound():
         ({"seed": -1}, "--seed: must be an integer from 0 to 2^32 - 1 = 4294967295, got -1"),
         ({"seed": 2**32}, "--seed: must be an integer from 0 to 2^32 - 1 = 4294967295, got 4294967296"),
         ({"workers": 0}, "--workers: must be from 1 to 256, got 0"),
+        ({"camera_offset_ms": 2000.0}, "--camera-offset-ms: must be from -1000 to 1000, got 2000.0"),
     ],
 )
 def test_run_synth_refuses_before_any_work(tmp_path, arguments, message):
@@ -153,3 +154,12 @@ def test_time_offset_option_on_the_command_line_is_refused_with_one_line(tmp_pat
         "calibrate", "--data", tmp_path, "--out", tmp_path / "o", "--time-offset", "sometimes", cwd=tmp_path
     )
     assert done.returncode == 2 and "--time-offset" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_synth_writes_the_camera_offset_and_motion_distortion_it_is_given(tmp_path):
+    seq = run_synth(
+        "vineyard", 2, 0, tmp_path, small=True, workers=1, camera_offset_ms=-12.5, motion_distortion=True
+    )
+    meta = json.loads((seq / "meta.json").read_text())
+    assert meta["camera_offset_s"] == -0.0125 and meta["timing"]["motion_distortion"] is True
+    assert len(list((seq / "point_times").glob("*.bin"))) == 2
