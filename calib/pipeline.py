@@ -100,13 +100,15 @@ class Calibrator:
         seq: Sequence | FrameList[Frame],
         picks: list[int],
         frames: list[Frame],
-        known: Mapping[int, ScanMotion] | None,
+        known: Mapping[int, ScanMotion] | str | None,
     ) -> tuple[ScanTiming | None, str]:
         """How the used frames' points move to the camera's time (``known`` motions, else LiDAR
         odometry around each), or ``None`` and why the points stay as measured."""
         cfg = self.config.time_offset
         if cfg.mode == "off":
             return None, "not modelled (time_offset.mode: off): points as measured"
+        if isinstance(known, str):
+            return None, f"not modelled, points as measured: {known}"
         if known is not None:
             missing = [i for i in picks if i not in known]
             if missing:
@@ -132,7 +134,7 @@ class Calibrator:
         seq: Sequence | FrameList[Frame],
         T_init: np.ndarray | None = None,
         seed: int | tuple[int, ...] = 0,
-        motions: Mapping[int, ScanMotion] | None = None,
+        motions: Mapping[int, ScanMotion] | str | None = None,
     ) -> CalibrationResult:
         """Calibrate ``seq`` (a :class:`Sequence` or a list of frames sharing one ``K``).
 
@@ -141,8 +143,9 @@ class Calibrator:
                 spread evenly, or the most informative of ``candidates`` times as many).
             T_init: ``(4, 4)`` initial ``T_cam_lidar``; ``None``: Stage 1 from motion.
             seed: of the correspondence sampling (an int or a tuple, as numpy seeds take).
-            motions: the LiDAR's motion around each frame by position (from an INS, or a
-                simulator's trajectory), used for the time offset instead of LiDAR odometry.
+            motions: the LiDAR's motion around each frame by position (from an INS, a simulator's
+                trajectory, or odometry run once for many calls), used for the time offset
+                instead of LiDAR odometry; or a string saying why there is none (nothing is tried).
         """
         start = time.perf_counter()
         if T_init is None:

@@ -276,8 +276,9 @@ def refine_passes(
     ``probe_alignments_px``); when every start is, the refinement raises.
 
     With ``timing`` every matching sees the points moved to the camera's time under the current
-    ``δt``, and each fit estimates ``δt`` with the extrinsic (held where its standard deviation
-    passes ``timing.max_std_s``: the frames' motion does not tell it from a translation).
+    ``δt``, and each fit after a start's first pass estimates ``δt`` with the extrinsic (held
+    where its standard deviation passes ``timing.max_std_s``: the frames' motion does not tell it
+    from a translation).
 
     Raises:
         NumericalError: too few correspondences to fit (from every start, with alternatives).
@@ -302,11 +303,13 @@ def refine_passes(
         matched = [_usable(matcher.match(frame, T), rules) for frame in at(dt)]
         return matched, _median_norm(np.concatenate([c.residual for c in matched]))
 
-    def fit(points, targets, weights, scans, T: np.ndarray, dt: float | None) -> Refinement:
+    def fit(
+        points, targets, weights, scans, T: np.ndarray, dt: float | None, estimate_dt: bool
+    ) -> Refinement:
         if timing is None:
             return refine_extrinsic(points, targets, weights, K, T, config.refine)
         result = refine_extrinsic(
-            points, targets, weights, K, T, config.refine, TimeModel(scans, twists, dt, timing.estimate)
+            points, targets, weights, K, T, config.refine, TimeModel(scans, twists, dt, estimate_dt)
         )
         if result.time_offset_std_s is not None and result.time_offset_std_s > timing.max_std_s:
             result = refine_extrinsic(
@@ -315,7 +318,7 @@ def refine_passes(
         return result
 
     def one_pass(
-        T: np.ndarray, dt: float | None, matched: list[Correspondences], alignment: float
+        T: np.ndarray, dt: float | None, matched: list[Correspondences], alignment: float, estimate_dt: bool
     ) -> tuple[Refinement, dict]:
         dropped = frame_outliers(
             np.array([_median_norm(c.residual) for c in matched]), rules.frame_factor, rules.frame_floor_px
@@ -333,10 +336,16 @@ def refine_passes(
             weights.append(w)
             scans.append(np.full(len(index), k))
         points, targets, weights, scans = (np.concatenate(x) for x in (points, targets, weights, scans))
-        first = fit(points, targets, weights, scans, T, dt)
+        first = fit(points, targets, weights, scans, T, dt, estimate_dt)
         keep = trim_points(np.linalg.norm(first.residuals, axis=1), rules.point_sigmas, rules.point_floor_px)
         result = fit(
-            points[keep], targets[keep], weights[keep], scans[keep], first.T_cam_lidar, first.time_offset_s
+            points[keep],
+            targets[keep],
+            weights[keep],
+            scans[keep],
+            first.T_cam_lidar,
+            first.time_offset_s,
+            estimate_dt,
         )
         entry = {
             "iterations": first.iterations + result.iterations,
@@ -360,7 +369,7 @@ def refine_passes(
     if len(starts) > 1:
         for k, T_start in enumerate(starts):
             try:
-                result, entry = one_pass(T_start, dt, *matched_under(T_start, dt))
+                result, entry = one_pass(T_start, dt, *matched_under(T_start, dt), estimate_dt=False)
             except NumericalError:  # a start where the matcher finds (almost) nothing
                 if k == len(starts) - 1 and all(probe[1] is None for probe in probes):
                     raise
@@ -406,7 +415,11 @@ def refine_passes(
                 break  # settled: the estimate hardly moved
         if len(history) == config.passes:
             break
-        result, entry = one_pass(T, dt, matched, alignment)
+        # the first pass from a start fits the extrinsic alone: while it is far off, δt would
+        # absorb its misfit (a vineyard run from 2° ended at -24 ms against 20)
+        result, entry = one_pass(
+            T, dt, matched, alignment, estimate_dt=bool(timing and timing.estimate and history)
+        )
         history.append(entry)
         fits.append((result, entry["correspondences"]))
         T_before, T, dt_before, dt = T, result.T_cam_lidar, dt, result.time_offset_s

@@ -24,7 +24,9 @@ from calib.data.io import write_image
 from calib.data.types import Frame
 from calib.errors import ConfigError, DataError
 from calib.geometry import perturb
+from calib.init.lidar_odometry import scan_motions
 from calib.init.motion_init import initial_calibration, load_stage1_config
+from calib.motion import ScanMotion
 from calib.pipeline import Calibrator, select_frames
 from calib.projection import project_scan
 from calib.refine.passes import CalibrateConfig
@@ -183,6 +185,11 @@ def run_calibrate(
             init_kind, init_arg = "file", stage1.T_cam_lidar
         picks = select_frames(len(seq), config.frames)
         frames = [seq[int(i)] for i in picks]
+        motions: dict[int, ScanMotion] | str = "time_offset.mode: off"
+        if config.time_offset.mode != "off":  # the LiDAR's motion around each frame, once for all runs
+            with console.status("LiDAR odometry around the frames (time offset)"):
+                found, why = scan_motions(seq, picks, config.time_offset.neighbours)
+            motions = dict(enumerate(found)) if found is not None else why
     calibrators = {s.name: Calibrator(support=s, matcher=matcher, config=config) for s in supports}
     results: dict[str, list[CalibrationResult]] = {name: [] for name in calibrators}
     with progress_bar("calibrate", console) as progress:
@@ -194,7 +201,7 @@ def run_calibrate(
                 T_init = init_arg
             for name, calibrator in calibrators.items():
                 # the same sampling draws for every support: a paired comparison
-                results[name].append(calibrator.calibrate(frames, T_init, seed=(seed, run)))
+                results[name].append(calibrator.calibrate(frames, T_init, seed=(seed, run), motions=motions))
                 progress.advance(task)
     by_support = {}
     for name, done in results.items():
