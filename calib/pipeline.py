@@ -23,7 +23,7 @@ from calib.data.extrinsic_file import rigid_problem
 from calib.data.types import Frame, Sequence
 from calib.errors import ConfigError, DataError
 from calib.init.lidar_odometry import scan_motions
-from calib.init.motion_init import Stage1Config, initial_calibration, load_stage1_config
+from calib.init.motion_init import Stage1Config, Stage1Result, initial_calibration, load_stage1_config
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
 from calib.motion import ScanMotion, twist_spread
@@ -81,8 +81,10 @@ class Calibrator:
 
     def initial_extrinsic(self, seq: Sequence) -> np.ndarray:
         """Stage 1: ``T⁰ (4, 4)`` from the sequence's motion (raises when motion cannot tell)."""
-        stage1 = self._stage1 if self._stage1 is not None else load_stage1_config()
-        return initial_calibration(seq, stage1).T_cam_lidar
+        return self._stage1_result(seq).T_cam_lidar
+
+    def _stage1_result(self, seq: Sequence) -> Stage1Result:
+        return initial_calibration(seq, self._stage1 if self._stage1 is not None else load_stage1_config())
 
     def _pick_frames(self, seq: Sequence | FrameList[Frame], T_init: np.ndarray) -> tuple[list[int], dict]:
         """Positions of the frames Stage 4 uses (``config.selection``) and the frames loaded to
@@ -101,10 +103,14 @@ class Calibrator:
         picks: list[int],
         frames: list[Frame],
         known: Mapping[int, ScanMotion] | str | None,
+        initial_s: float | None = None,
     ) -> tuple[ScanTiming | None, str]:
         """How the used frames' points move to the camera's time (``known`` motions, else LiDAR
-        odometry around each), or ``None`` and why the points stay as measured."""
+        odometry around each), or ``None`` and why the points stay as measured; ``δt`` starts at
+        ``initial_s`` (Stage 1's) where given, else at the config's."""
         cfg = self.config.time_offset
+        if initial_s is not None:
+            cfg = cfg.model_copy(update={"initial_s": initial_s})
         if cfg.mode == "off":
             return None, "not modelled (time_offset.mode: off): points as measured"
         if isinstance(known, str):
@@ -151,11 +157,14 @@ class Calibrator:
         if T_init is None:
             if not isinstance(seq, Sequence):
                 raise DataError("T_init", "Stage 1 needs a Sequence (with time stamps); give T_init")
-            T_init = self.initial_extrinsic(seq)  # Stage 1
+            stage1 = self._stage1_result(seq)  # Stage 1
+            T_init, stage1_offset = stage1.T_cam_lidar, stage1.time_offset_s
+        else:
+            stage1_offset = None
         T_init = _checked_extrinsic(T_init, "T_init")
         picks, loaded = self._pick_frames(seq, T_init)
         frames = [loaded[i] if i in loaded else seq[i] for i in picks]
-        timing, timing_note = self._scan_timing(seq, picks, frames, motions)
+        timing, timing_note = self._scan_timing(seq, picks, frames, motions, stage1_offset)
         # the coarse stages see the points at the camera's time under the initial δt
         seen = (
             frames

@@ -32,7 +32,7 @@ from calib.data.types import Sequence
 from calib.init.degeneracy import DegeneracyConfig, MotionDiagnostics, check_motion, diagnose
 from calib.init.hand_eye import HandEyeConfig, HandEyeResult, UnobservableError, hand_eye
 from calib.init.lidar_odometry import lidar_odometry, sensor_range
-from calib.init.time_sync import interpolate_poses
+from calib.init.time_sync import StampOffset, interpolate_poses, stamp_offset
 from calib.init.visual_odometry import CameraMotion, VisualOdometryConfig, visual_odometry
 from calib.yaml_io import load_config
 
@@ -88,6 +88,8 @@ class Stage1Result:
         diagnostics: the degeneracy tests' numbers (all passed, or ``degeneracy.refuse`` is off).
         seconds: wall time per step.
         notes: facts a user should know (stamps assumed, planar motion).
+        stamp_offset: the lag of the camera's stamps behind the LiDAR's clock from the two
+            streams' rotation angles (:func:`~calib.init.time_sync.stamp_offset`), or ``None``.
     """
 
     T_cam_lidar: np.ndarray
@@ -102,6 +104,15 @@ class Stage1Result:
     diagnostics: MotionDiagnostics
     seconds: dict[str, float]
     notes: list[str]
+    stamp_offset: StampOffset | None = None
+
+    @property
+    def time_offset_s(self) -> float | None:
+        """Stage 4's ``δt`` (camera exposure minus LiDAR stamp) as Stage 1 sees it: the stamps'
+        median difference less the camera stamps' lag; ``None`` where the lag is not determined."""
+        if self.stamp_offset is None or not np.isfinite(self.stamp_offset.std_s):
+            return None
+        return float(np.median(self.camera_times - self.lidar_times) - self.stamp_offset.offset_s)
 
 
 def initial_calibration(
@@ -152,6 +163,17 @@ def initial_calibration(
     ends = np.array([[camera_times[m.i], camera_times[m.j]] for m in motions])
     at_camera, valid = interpolate_poses(lidar_times, lidar_poses, ends.ravel(), config.max_sync_gap_s)
     at_camera, kept = at_camera.reshape(-1, 2, 4, 4), valid.reshape(-1, 2).all(axis=1)
+    try:  # the clocks' offset from the rotation angles alone, before any extrinsic
+        lag = stamp_offset(
+            lidar_times,
+            lidar_poses,
+            ends,
+            np.stack([m.T[:3, :3] for m in motions]),
+            max_gap_s=config.max_sync_gap_s,
+        )
+    except ValueError as error:
+        lag = None
+        notes.append(f"no time offset from the motion: {error}")
     A = np.stack([m.T for m, k in zip(motions, kept, strict=True) if k])
     B = np.linalg.inv(at_camera[kept, 1]) @ at_camera[kept, 0]  # T_lidar_j_lidar_i
     calibration = hand_eye(A, B, config.hand_eye)
@@ -184,6 +206,7 @@ def initial_calibration(
         diagnostics=diagnostics,
         seconds=seconds,
         notes=notes + calibration.notes,
+        stamp_offset=lag,
     )
 
 

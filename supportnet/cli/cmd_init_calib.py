@@ -40,6 +40,11 @@ def camera_trajectory(result: Stage1Result) -> tuple[np.ndarray, np.ndarray]:
     return np.array(times), np.array(poses)
 
 
+def _finite(value: float) -> float | None:
+    """JSON has no infinity: ``None`` for it."""
+    return value if np.isfinite(value) else None
+
+
 def _kitti(poses: np.ndarray) -> str:
     return "".join(" ".join(f"{v:.9e}" for v in T[:3].ravel()) + "\n" for T in poses)
 
@@ -125,6 +130,9 @@ def run_init_calib(
             "synchronised_motions": int(result.kept.sum()),
             "motions_used": int(he.used.sum()),
             "inlier_ratio": he.inlier_ratio,
+            "time_offset_s": result.time_offset_s,
+            "stamp_lag_s": None if result.stamp_offset is None else result.stamp_offset.offset_s,
+            "stamp_lag_std_s": None if result.stamp_offset is None else _finite(result.stamp_offset.std_s),
             "notes": result.notes,
             "seconds": result.seconds,
             "runtime_s": time.perf_counter() - start,
@@ -153,6 +161,20 @@ def run_init_calib(
     console.print(line, markup=False, highlight=False, soft_wrap=True)
     for weak in he.weak:
         console.print(f"weak: {weak}", markup=False, highlight=False, soft_wrap=True)
+    if result.stamp_offset is not None:
+        lag = result.stamp_offset
+        told = (
+            "not determined (straight drive)"
+            if result.time_offset_s is None
+            else f"{1e3 * result.time_offset_s:.1f} ms"
+        )
+        console.print(
+            f"time offset from the rotation angles: {told}; camera stamps lag the LiDAR's by "
+            f"{1e3 * lag.offset_s:.1f} ± {1e3 * lag.std_s:.1f} ms over {lag.pairs} motions",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
     d, limits = result.diagnostics, config.degeneracy
     halves = "not run" if np.isnan(d.subset_spread_deg) else f"{d.subset_spread_deg:.2f}° RMS"
     console.print(

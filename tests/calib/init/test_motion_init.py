@@ -90,3 +90,7 @@ def test_a_well_excited_drive_passes_with_a_small_rotation_error():
     assert d["rotation_std_deg"] < limits.max_rotation_std_deg and d["subsets_solved"] == 8
     assert d["subset_spread_deg"] < limits.max_subset_spread_deg
     assert any(w.kind == "translation" and w.axis == "+z" for w in result.calibration.weak)
+    # the corner also tells the time offset from the rotation angles alone: the camera fires 5 ms
+    # after the LiDAR's stamp, and the stamps say so (no lag); Stage 4 starts within a frame of it
+    assert result.time_offset_s == pytest.approx(0.005, abs=0.02)
+    assert result.stamp_offset.std_s < 0.02
