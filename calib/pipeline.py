@@ -293,16 +293,20 @@ class OnlineCalibrator:
             T = frame.calibration.T_cam_lidar
             self.T_file = self.T_init if T is None else np.asarray(T, np.float64)
         if self._state is None:
-            self._state = OnlineState.start(self.T_init, self.T_file, online)
+            self._state = OnlineState.start(
+                self.T_init, self.T_file, online, self.config.time_offset.initial_s
+            )
         if position >= self._next_start:
             self._buffer.append(frame)
         if len(self._buffer) < online.window:
             return None
         first = self._next_start
+        timing = self._window_timing()
         passes = refine_passes(
-            self._buffer, self.T_cam_lidar, self.matcher, self.support, self.config, self._rng
+            self._buffer, self.T_cam_lidar, self.matcher, self.support, self.config, self._rng, timing=timing
         )
         self._state.update(departure(passes.T_cam_lidar, self.T_file), passes.covariance)
+        self._state.update_time_offset(passes.time_offset_s, passes.time_offset_std_s)
         middle = self._buffer[online.window // 2]
         estimate = OnlineEstimate(
             window=self._windows,
@@ -315,11 +319,29 @@ class OnlineCalibrator:
             drift=self._state.drift,
             correspondences=passes.correspondences,
             reference_T_cam_lidar=self.T_file,
+            time_offset_s=self._state.time_offset_s,
+            time_offset_std_s=self._state.time_offset_std_s,
+            window_time_offset_s=passes.time_offset_s if passes.time_offset_std_s is not None else None,
         )
         self._windows += 1
         self._next_start += online.step
         self._buffer = self._buffer[online.step :]
         return estimate
+
+    def _window_timing(self) -> ScanTiming | None:
+        """The window's frames moved to the running ``δt``, fitted where their motion tells it
+        (the window's scans are consecutive: each other's odometry neighbours)."""
+        cfg = self.config.time_offset
+        if cfg.mode == "off":
+            return None
+        motions, _ = scan_motions(self._buffer, range(len(self._buffer)), cfg.neighbours)
+        if motions is None:
+            return None
+        speed, turn = twist_spread(motions)
+        moving = speed >= cfg.min_speed_spread_mps or turn >= cfg.min_turn_spread_radps
+        return ScanTiming(
+            motions, self._state.time_offset_s, cfg.mode == "estimate" and moving, cfg.max_std_s
+        )
 
 
 def _stamp_offset(frames: list[Frame]) -> float | None:

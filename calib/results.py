@@ -130,6 +130,8 @@ class OnlineEstimate:
         drift: whether it has left the calibration on file beyond its uncertainty.
         correspondences: how many this window's last pass used.
         reference_T_cam_lidar: the calibration on file.
+        time_offset_s, time_offset_std_s: the running ``δt`` and its std.
+        window_time_offset_s: this window's own ``δt`` (``None``: held or not modelled).
     """
 
     window: int
@@ -142,6 +144,9 @@ class OnlineEstimate:
     drift: bool
     correspondences: int
     reference_T_cam_lidar: np.ndarray
+    time_offset_s: float = 0.0
+    time_offset_std_s: float = 0.0
+    window_time_offset_s: float | None = None
 
     @property
     def std(self) -> tuple[float, float]:
@@ -162,4 +167,7 @@ class OnlineEstimate:
             "std_deg": std_deg,
             "drift": self.drift,
             "correspondences": self.correspondences,
+            "time_offset_s": self.time_offset_s,
+            "time_offset_std_s": self.time_offset_std_s,
+            "window_time_offset_s": self.window_time_offset_s,
         }

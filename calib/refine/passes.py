@@ -62,8 +62,8 @@ class TimeOffsetConfig(BaseModel):
         "stamp; estimate: from there δt is fitted as a seventh parameter where the frames' motion "
         "varies enough to tell it from a translation (else held at initial_s, and said so). Needs "
         "consecutive time-stamped scans around the used frames (LiDAR odometry); without them the "
-        "points stay as measured, and the result says why. Calibrator only: the online windows "
-        "do not model δt yet",
+        "points stay as measured, and the result says why. Online, each window's scans are their "
+        "own odometry neighbours and δt is tracked across windows (online.time_offset_*)",
     )
     initial_s: float = Field(0.0, ge=-1, le=1, description="δt to start from (estimate) or to hold (fixed)")
     max_std_s: float = Field(

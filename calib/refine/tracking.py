@@ -6,6 +6,10 @@ between windows), so each window predicts ``P ← P + Q`` and updates with that 
 extrinsic ``z`` and its covariance ``R`` (Kalman): ``K = P (P + R)⁻¹, x ← x + K (z − x),
 P ← (I − K) P``. Drift is flagged when the running estimate has left the calibration on file by
 more than ``drift_sigmas`` of its uncertainty and a minimum size.
+
+The camera–LiDAR time offset ``δt`` (a clock that drifts slowly) is tracked beside it by a
+scalar filter of the same kind, from the windows whose motion tells ``δt`` (the others leave it
+to the prediction), and its departure from where it started counts as drift too.
 """
 
 from __future__ import annotations
@@ -43,6 +47,16 @@ class OnlineConfig(BaseModel):
     drift_min: tuple[NonNegativeFloat, NonNegativeFloat] = Field(
         (2.0, 0.3), description="... and beyond this size (cm, °)"
     )
+    time_offset_initial_std_ms: PositiveFloat = Field(50.0, description="how far δt may start from the truth")
+    time_offset_process_std_ms: NonNegativeFloat = Field(
+        1.0, description="how far δt may move between windows"
+    )
+    time_offset_floor_ms: NonNegativeFloat = Field(
+        1.0,
+        description="added to each window's δt std (the fit's own is optimistic: 0.02 ms claimed "
+        "where the error was 1 ms on the synthetic street)",
+    )
+    time_offset_drift_min_ms: NonNegativeFloat = Field(5.0, description="δt drift: beyond this size too")
 
 
 def _diag(sizes: tuple[float, float]) -> np.ndarray:
@@ -67,10 +81,36 @@ class OnlineState:
     x: np.ndarray
     P: np.ndarray
     config: OnlineConfig
+    time_offset_s: float = 0.0
+    time_offset_var: float = 0.0
+    time_offset_file_s: float = 0.0
 
     @classmethod
-    def start(cls, T_init: np.ndarray, T_file: np.ndarray, config: OnlineConfig) -> OnlineState:
-        return cls(departure(T_init, T_file), _diag(config.initial_std), config)
+    def start(
+        cls, T_init: np.ndarray, T_file: np.ndarray, config: OnlineConfig, time_offset_s: float = 0.0
+    ) -> OnlineState:
+        return cls(
+            departure(T_init, T_file),
+            _diag(config.initial_std),
+            config,
+            time_offset_s,
+            (config.time_offset_initial_std_ms / 1e3) ** 2,
+            time_offset_s,
+        )
+
+    def update_time_offset(self, z_s: float | None, std_s: float | None) -> None:
+        """Predict ``δt`` one window on; fuse one window's ``z_s`` with ``std_s`` where it has one."""
+        self.time_offset_var += (self.config.time_offset_process_std_ms / 1e3) ** 2
+        if z_s is None or std_s is None:
+            return
+        r = std_s**2 + (self.config.time_offset_floor_ms / 1e3) ** 2
+        gain = self.time_offset_var / (self.time_offset_var + r)
+        self.time_offset_s += gain * (z_s - self.time_offset_s)
+        self.time_offset_var *= 1 - gain
+
+    @property
+    def time_offset_std_s(self) -> float:
+        return float(np.sqrt(self.time_offset_var))
 
     def update(self, z: np.ndarray, R: np.ndarray) -> None:
         """Fuse one window's estimate ``z (6,)`` with covariance ``R (6, 6)``."""
@@ -88,9 +128,14 @@ class OnlineState:
     @property
     def drift(self) -> bool:
         """Whether the estimate has left the calibration on file beyond its uncertainty."""
-        size = (100 * np.linalg.norm(self.x[:3]), np.degrees(np.linalg.norm(self.x[3:])))
-        std = self.std
+        size = (
+            100 * np.linalg.norm(self.x[:3]),
+            np.degrees(np.linalg.norm(self.x[3:])),
+            1e3 * abs(self.time_offset_s - self.time_offset_file_s),
+        )
+        std = (*self.std, 1e3 * self.time_offset_std_s)
+        minimums = (*self.config.drift_min, self.config.time_offset_drift_min_ms)
         return any(
             s > max(self.config.drift_sigmas * sd, minimum)
-            for s, sd, minimum in zip(size, std, self.config.drift_min, strict=True)
+            for s, sd, minimum in zip(size, std, minimums, strict=True)
         )

@@ -300,10 +300,6 @@ def calibrate(
     cfg = load_calibrate_config(config)
     if time_offset is not None:
         cfg = cfg.model_copy(update={"time_offset": time_offset_setting(time_offset, cfg.time_offset)})
-    if online and time_offset not in (None, "off"):
-        raise ConfigError(
-            "--time-offset", "online calibration does not model the time offset yet; leave it out"
-        )
     if online:
         from supportnet.cli.cmd_online import run_online
 

@@ -167,6 +167,7 @@ def _write_csv(rows: list[dict], path: Path) -> None:
     header = ["window", "first_frame", "last_frame", "time_s", "drift"]
     header += [f"window_{n}" for n in names] + [f"running_{n}" for n in names]
     header += ["std_cm", "std_deg"] + ([f"truth_{n}" for n in names] if "truth" in rows[0] else [])
+    header += ["window_time_offset_ms", "running_time_offset_ms", "time_offset_std_ms"]
     with path.open("w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(header)
@@ -175,7 +176,12 @@ def _write_csv(rows: list[dict], path: Path) -> None:
                 [r["window"], r["first_frame"], r["last_frame"], f"{r['time_s']:.3f}", int(r["drift"])]
                 + [f"{v:.4f}" for v in (*r["window_estimate"], *r["running_estimate"], *r["std_cm_deg"])]
                 + [f"{v:.4f}" for v in r.get("truth", [])]
+                + [_ms(r["window_time_offset_s"]), _ms(r["time_offset_s"]), _ms(r["time_offset_std_s"])]
             )
+
+
+def _ms(seconds: float | None) -> str:
+    return "" if seconds is None else f"{1e3 * seconds:.3f}"
 
 
 def _plot(rows: list[dict], path: Path, title: str) -> None:
@@ -188,8 +194,8 @@ def _plot(rows: list[dict], path: Path, title: str) -> None:
     running = np.array([r["running_estimate"] for r in rows])
     window = np.array([r["window_estimate"] for r in rows])
     std = np.array([r["std_cm_deg"] for r in rows])
-    fig, axes = plt.subplots(2, 3, figsize=(13, 6), sharex=True)
-    for j, ax in enumerate(axes.ravel()):
+    fig, axes = plt.subplots(2, 4, figsize=(17, 6), sharex=True)
+    for j, ax in enumerate(axes[:, :3].ravel()):
         band = 2 * std[:, 0 if j < 3 else 1]
         ax.fill_between(t, running[:, j] - band, running[:, j] + band, alpha=0.25, label="running ± 2σ")
         ax.plot(t, running[:, j], "-", label="running estimate")
@@ -201,7 +207,20 @@ def _plot(rows: list[dict], path: Path, title: str) -> None:
                 ax.axvspan(r["time_s"] - 0.05, r["time_s"] + 0.05, color="red", alpha=0.15, lw=0)
         ax.set_title(f"{PARAMETERS[j]} from the calibration on file", fontsize=9)
         ax.grid(alpha=0.3)
-    for ax in axes[1]:
+    dt = 1e3 * np.array([r["time_offset_s"] for r in rows])
+    dt_band = 2e3 * np.array([r["time_offset_std_s"] for r in rows])
+    ax = axes[0, 3]
+    ax.fill_between(t, dt - dt_band, dt + dt_band, alpha=0.25)
+    ax.plot(t, dt, "-")
+    fitted = [
+        (r["time_s"], 1e3 * r["window_time_offset_s"]) for r in rows if r["window_time_offset_s"] is not None
+    ]
+    if fitted:
+        ax.plot(*zip(*fitted, strict=True), ".", ms=5)
+    ax.set_title("time offset δt ms (camera minus LiDAR)", fontsize=9)
+    ax.grid(alpha=0.3)
+    axes[1, 3].axis("off")
+    for ax in axes[1, :3]:
         ax.set_xlabel("time s")
     axes[0, 0].legend(fontsize=7)
     fig.suptitle(title + " (red: drift flagged)")

@@ -37,6 +37,20 @@ def test_the_filter_follows_consistent_windows_and_grows_confident():
     assert not still.drift
 
 
+def test_the_time_offset_filter_follows_fitted_windows_and_waits_through_held_ones():
+    config = OnlineConfig(
+        time_offset_initial_std_ms=50.0, time_offset_process_std_ms=1.0, time_offset_floor_ms=1.0
+    )
+    state = OnlineState.start(np.eye(4), np.eye(4), config, time_offset_s=0.0)
+    state.update_time_offset(None, None)  # a straight window: prediction only
+    assert state.time_offset_s == 0.0 and state.time_offset_std_s == pytest.approx(np.hypot(0.05, 0.001))
+    assert not state.drift
+    for _ in range(6):  # the clock has moved to 20 ms: windows that turn say so, ±0.5 ms
+        state.update_time_offset(0.020, 0.0005)
+    assert state.time_offset_s == pytest.approx(0.020, abs=1e-4) and state.time_offset_std_s < 0.002
+    assert state.drift  # 20 ms from where it started: beyond 3σ and the 5 ms minimum
+
+
 def test_synthetic_drift_is_exact_and_recorded(tmp_path):
     synth = Synthesizer(load_synth_config("urban", small=True), 5, seed=3, drift=(4.0, 1.0))
     assert calibration_error(synth.extrinsic(4), synth.T_cam_lidar).translation_cm == pytest.approx(4.0)
@@ -65,6 +79,11 @@ def test_online_calibration_tracks_an_injected_drift(tmp_path):
     assert not first["drift"] and last["drift"] and out["first_drift_window"] >= 1
     rows = list(csv.DictReader((tmp_path / "online" / "estimates.csv").open()))
     assert len(rows) == 4 and rows[-1]["drift"] == "1"
+    # δt (the world's camera fires 5 ms after the LiDAR): windows on the straight are held at the
+    # running value, the one in the turn at the end fits it (measured 6.9 ms)
+    fitted = [float(r["window_time_offset_ms"]) for r in rows if r["window_time_offset_ms"]]
+    assert 1 <= len(fitted) < 4 and all(abs(v - 5.0) < 3.0 for v in fitted)
+    assert abs(float(rows[-1]["running_time_offset_ms"]) - 5.0) < 3.0
     assert (tmp_path / "online" / "parameters.png").is_file()
     with pytest.raises(DataError, match="one support"):
         run_online(tmp_path, "00", "uniform,onnx", "perturb:0,0", tmp_path / "o2", config)
