@@ -24,7 +24,7 @@ import torch
 
 from calib.geometry import se3_exp, se3_log
 
-__all__ = ["ScanMotion", "motions_from_poses", "twist_spread"]
+__all__ = ["ScanMotion", "motions_from_poses", "sweep_times", "twist_spread"]
 
 
 @dataclass(frozen=True)
@@ -133,3 +133,24 @@ def twist_spread(motions: list[ScanMotion]) -> tuple[float, float]:
     speed = float(np.sqrt((deviation[:, :3] ** 2).sum(1).mean()))
     turn = float(np.sqrt((deviation[:, 3:] ** 2).sum(1).mean()))
     return speed, turn
+
+
+def sweep_times(
+    points_lidar: np.ndarray, period_s: float = 0.1, clockwise: bool = True, stamp_azimuth_deg: float = 0.0
+) -> np.ndarray:
+    """Per-point times of a rotating LiDAR that records none: from each point's azimuth.
+
+    The head turns once per ``period_s`` (clockwise seen from above: the azimuth ``atan2(y, x)``
+    falls) and faces ``stamp_azimuth_deg`` at the scan's stamp (KITTI triggers its cameras as the
+    HDL-64 faces forward, 0°), so a point at azimuth ``a`` was measured
+    ``∓ wrap(a − a_stamp) / 2π · period`` from the stamp, within half a period either side.
+
+    Args:
+        points_lidar: ``(N, 3+)``.
+
+    Returns:
+        ``(N,)`` seconds from the stamp, in ``(−period/2, period/2]``.
+    """
+    azimuth = np.arctan2(points_lidar[:, 1], points_lidar[:, 0]) - np.radians(stamp_azimuth_deg)
+    wrapped = np.angle(np.exp(1j * azimuth))  # (−π, π]
+    return (-wrapped if clockwise else wrapped) / (2 * np.pi) * period_s

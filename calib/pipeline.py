@@ -31,7 +31,14 @@ from calib.observability import weak_directions
 from calib.refine.contour_refine import contour_refine
 from calib.refine.frame_selection import contour_information, select_informative
 from calib.refine.global_search import global_search
-from calib.refine.passes import CalibrateConfig, ScanTiming, frames_at, load_calibrate_config, refine_passes
+from calib.refine.passes import (
+    CalibrateConfig,
+    ScanTiming,
+    frames_at,
+    load_calibrate_config,
+    refine_passes,
+    sweep_model,
+)
 from calib.refine.tracking import OnlineState, departure, extrinsic_of
 from calib.results import CalibrationResult, OnlineEstimate
 from calib.support.source import SupportSource, UniformSupport
@@ -133,7 +140,7 @@ class Calibrator:
                 f"translation (speed spread {speed:.2f} m/s, turn-rate spread {turn:.3f} rad/s; needs "
                 f"{cfg.min_speed_spread_mps:g} or {cfg.min_turn_spread_radps:g})"
             )
-        return ScanTiming(motions, cfg.initial_s, estimate, cfg.max_std_s), note
+        return ScanTiming(motions, cfg.initial_s, estimate, cfg.max_std_s, sweep_model(cfg)), note
 
     def calibrate(
         self,
@@ -340,7 +347,11 @@ class OnlineCalibrator:
         speed, turn = twist_spread(motions)
         moving = speed >= cfg.min_speed_spread_mps or turn >= cfg.min_turn_spread_radps
         return ScanTiming(
-            motions, self._state.time_offset_s, cfg.mode == "estimate" and moving, cfg.max_std_s
+            motions,
+            self._state.time_offset_s,
+            cfg.mode == "estimate" and moving,
+            cfg.max_std_s,
+            sweep_model(cfg),
         )
 
 

@@ -4,8 +4,9 @@ matcher three times; each pass starts from the last estimate)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Literal
 
@@ -18,7 +19,7 @@ from calib.errors import DataError, NumericalError
 from calib.geometry import calibration_error, se3_exp, se3_log
 from calib.match.correspondences import Correspondences, Matcher
 from calib.match.edge_matcher import EdgeMatcherConfig
-from calib.motion import ScanMotion
+from calib.motion import ScanMotion, sweep_times
 from calib.projection import pixel_lookup
 from calib.refine.contour_refine import ContourRefineConfig
 from calib.refine.frame_selection import FrameSelectionConfig
@@ -37,6 +38,7 @@ __all__ = [
     "ScanTiming",
     "TimeOffsetConfig",
     "draw",
+    "sweep_model",
     "frames_at",
     "refine_passes",
 ]
@@ -81,6 +83,15 @@ class TimeOffsetConfig(BaseModel):
         "the synthetic street) while it reads turn rates within 0.01 rad/s",
     )
     min_turn_spread_radps: float = Field(0.1, gt=0, description="see min_speed_spread_mps")
+    sweep: Literal["recorded", "clockwise", "counterclockwise"] = Field(
+        "recorded",
+        description="per-point times: as the scans record them (none: not deskewed), or, for a "
+        "rotating LiDAR that records none, from each point's azimuth turning this way",
+    )
+    sweep_period_s: float = Field(0.1, gt=0, description="one turn of the LiDAR's head")
+    sweep_stamp_azimuth_deg: float = Field(
+        0.0, ge=-180, le=180, description="where the head faces at the scan's stamp (KITTI: forward, 0)"
+    )
     neighbours: int = Field(
         3,
         ge=1,
@@ -164,22 +175,42 @@ class ScanTiming:
         motions: one :class:`~calib.motion.ScanMotion` per frame (from LiDAR odometry).
         offset_s: ``δt`` to start from (or to hold). estimate: fit ``δt``.
         max_std_s: hold ``δt`` where its fitted standard deviation passes this.
+        sweep: per-point times from the points, for scans that record none
+            (:func:`~calib.motion.sweep_times` with the config's sweep).
     """
 
     motions: Sequence[ScanMotion]
     offset_s: float = 0.0
     estimate: bool = True
     max_std_s: float = 0.002
+    sweep: Callable[[np.ndarray], np.ndarray] | None = None
 
     def stamp_points(self, frames: Sequence[Frame]) -> list[np.ndarray]:
-        """Each frame's points ``(N, 3)`` in the LiDAR frame at its stamp (deskewed where the
-        frame has per-point times)."""
-        return [
-            motion.deskew(frame.points[:, :3].astype(np.float64), frame.point_times)
-            if frame.point_times is not None
-            else frame.points[:, :3].astype(np.float64)
-            for frame, motion in zip(frames, self.motions, strict=True)
-        ]
+        """Each frame's points ``(N, 3)`` in the LiDAR frame at its stamp: deskewed with the
+        frame's per-point times, else with ``sweep(points)`` (times from the azimuth) where given,
+        else as measured."""
+        out = []
+        for frame, motion in zip(frames, self.motions, strict=True):
+            points = frame.points[:, :3].astype(np.float64)
+            times = (
+                frame.point_times
+                if frame.point_times is not None or self.sweep is None
+                else self.sweep(points)
+            )
+            out.append(points if times is None else motion.deskew(points, times))
+        return out
+
+
+def sweep_model(config: TimeOffsetConfig) -> Callable[[np.ndarray], np.ndarray] | None:
+    """Per-point times from the azimuth as ``config.sweep`` says, or ``None`` (``recorded``)."""
+    if config.sweep == "recorded":
+        return None
+    return partial(
+        sweep_times,
+        period_s=config.sweep_period_s,
+        clockwise=config.sweep == "clockwise",
+        stamp_azimuth_deg=config.sweep_stamp_azimuth_deg,
+    )
 
 
 def frames_at(

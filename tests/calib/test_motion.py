@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from calib.geometry import se3_exp
-from calib.motion import ScanMotion, motions_from_poses, twist_spread
+from calib.motion import ScanMotion, motions_from_poses, sweep_times, twist_spread
 
 
 def driving(speed: float = 8.0, yaw_rate: float = 0.3) -> np.ndarray:
@@ -86,3 +86,25 @@ def test_twist_spread_known_answer():
     ]
     assert twist_spread(motions) == pytest.approx((2.0, 0.1))
     assert twist_spread([ScanMotion(driving(8.0, 0.3), driving(8.0, 0.3))] * 4) == (0.0, 0.0)
+
+
+def test_sweep_times_from_the_azimuth_equal_the_synthetic_lidars_recorded_times():
+    """The synthetic LiDAR turns clockwise and faces forward at the stamp, as KITTI's HDL-64."""
+    from calib.synth.generate import Synthesizer
+    from calib.synth.synth_config import load_synth_config
+
+    config = load_synth_config("urban", small=True, timing={"motion_distortion": True})
+    frame = Synthesizer(config, 1, seed=3).render(0).frame
+    times = sweep_times(frame.points, config.timing.lidar_period_s, clockwise=True)
+    assert frame.point_times is not None and len(times) == len(frame.point_times)
+    half_step = 0.5 * config.lidar.azimuth_step_deg / 360 * config.timing.lidar_period_s
+    wrapped = np.abs(times - frame.point_times) % config.timing.lidar_period_s  # ±π is one instant
+    assert np.minimum(wrapped, config.timing.lidar_period_s - wrapped).max() < half_step + 1e-6
+
+
+def test_sweep_times_known_answers():
+    ahead, left, behind = [10.0, 0, 0], [0, 10.0, 0], [-10.0, 0.001, 0]
+    points = np.array([ahead, left, behind])
+    np.testing.assert_allclose(sweep_times(points, 0.1, clockwise=True), [0.0, -0.025, -0.05], atol=1e-5)
+    np.testing.assert_allclose(sweep_times(points, 0.1, clockwise=False), [0.0, 0.025, 0.05], atol=1e-5)
+    np.testing.assert_allclose(sweep_times(points, 0.1, stamp_azimuth_deg=90.0)[1], 0.0, atol=1e-12)
