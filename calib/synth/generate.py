@@ -121,6 +121,12 @@ class Synthesizer:
         fraction = i / max(self.n_frames - 1, 1)
         return self.T_cam_lidar @ se3_exp(fraction * self._drift_twist).numpy()
 
+    def camera_offset(self, i: int) -> float:
+        """Frame ``i``'s camera stamp minus LiDAR stamp: the configured offset, moved by the clock's
+        drift so far (linearly, to ``camera_offset_drift_s`` at the last frame)."""
+        timing = self.config.timing
+        return timing.camera_offset_s + i / max(self.n_frames - 1, 1) * timing.camera_offset_drift_s
+
     def lidar_poses(self) -> np.ndarray:
         """``(frames, 4, 4)`` ground-truth ``T_world_lidar`` at each scan's stamp."""
         return self.world.drive.lidar_poses(np.arange(self.n_frames) / self.config.timing.rate_hz)
@@ -131,7 +137,7 @@ class Synthesizer:
         timing, wind = self.config.timing, self.config.wind
         rng = np.random.default_rng([self.seed, i])
         t_lidar = i / timing.rate_hz
-        t_cam = t_lidar + timing.camera_offset_s
+        t_cam = t_lidar + self.camera_offset(i)
         drive = self.world.drive
         T_world_cam = drive.lidar_poses(np.array([t_cam]))[0] @ np.linalg.inv(self.extrinsic(i))
         image, image_labels = self.camera.render(
@@ -192,6 +198,11 @@ class Synthesizer:
             "K": c.camera.K.tolist(),
             "image_size": [c.camera.height, c.camera.width],
             "camera_offset_s": c.timing.camera_offset_s,
+            **(
+                {"camera_offsets_s": [self.camera_offset(i) for i in range(self.n_frames)]}
+                if c.timing.camera_offset_drift_s
+                else {}
+            ),
             "wind": c.wind.model_dump(),
             "timing": c.timing.model_dump(),
             "config": c.model_dump(mode="json"),

@@ -29,6 +29,12 @@ class TimingConfig(_Strict):
 
     rate_hz: float = Field(10.0, gt=0, le=1000)
     camera_offset_s: float = Field(0.0, ge=-10, le=10, description="camera stamp minus LiDAR stamp")
+    camera_offset_drift_s: float = Field(
+        0.0,
+        ge=-10,
+        le=10,
+        description="a drifting clock: the offset changes by this much from the first frame to the last",
+    )
     lidar_period_s: float = Field(0.1, gt=0, le=10, description="one LiDAR revolution")
     motion_distortion: bool = Field(False, description="cast each beam from the pose at its own time")
 

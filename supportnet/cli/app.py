@@ -89,6 +89,14 @@ def synth(
             show_default=False,
         ),
     ] = None,
+    clock_drift_ms: Annotated[
+        float | None,
+        typer.Option(
+            help="The camera offset changes by this much (ms, -1000 to 1000), linearly, by the last "
+            "frame: a drifting clock.",
+            callback=in_range("--clock-drift-ms", -1000, 1000),
+        ),
+    ] = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Write a synthetic sequence with ground truth: images, scans, point and pixel labels,
@@ -111,6 +119,7 @@ def synth(
         small=small,
         camera_offset_ms=camera_offset_ms,
         motion_distortion=motion_distortion,
+        clock_drift_ms=clock_drift_ms,
     )
 
 

@@ -66,6 +66,7 @@ def run_synth(
     small: bool = False,
     camera_offset_ms: float | None = None,
     motion_distortion: bool | None = None,
+    clock_drift_ms: float | None = None,
 ) -> Path:
     """Generate ``out/sequences/<sequence>`` (and ``out/poses/<sequence>.txt``) atomically, or
     with ``fmt="bag"`` the same frames as a ROS 2 bag folder ``out/<sequence>_bag`` (image,
@@ -74,8 +75,9 @@ def run_synth(
     Other sequences already in ``out`` are kept, so several seeds can share one dataset root.
     The packaged worlds render at real pixel scale (urban 1242x375, vineyard 960x540); ``small``
     renders 624x188 instead (:data:`~calib.synth.synth_config.SMALL_CAMERA`, ``--small``).
-    ``camera_offset_ms`` (camera exposure minus LiDAR stamp) and ``motion_distortion`` (each
-    beam cast from the pose at its own time, with per-point times written) replace the world's.
+    ``camera_offset_ms`` (camera exposure minus LiDAR stamp), ``clock_drift_ms`` (how much that
+    offset changes, linearly, by the last frame) and ``motion_distortion`` (each beam cast from
+    the pose at its own time, with per-point times written) replace the world's.
 
     Returns:
         The sequence folder (or the bag folder).
@@ -104,6 +106,10 @@ def run_synth(
     timing = {} if camera_offset_ms is None else {"camera_offset_s": camera_offset_ms / 1000}
     if motion_distortion is not None:
         timing["motion_distortion"] = motion_distortion
+    if clock_drift_ms is not None:
+        if not -1000 <= clock_drift_ms <= 1000:  # False for NaN
+            raise ConfigError("--clock-drift-ms", f"must be from -1000 to 1000, got {clock_drift_ms}")
+        timing["camera_offset_drift_s"] = clock_drift_ms / 1000
     cfg = load_synth_config(world, config, small=small, **({"timing": timing} if timing else {}))
     start = time.perf_counter()
     synth = Synthesizer(cfg, frames, seed, drift)

@@ -158,8 +158,17 @@ def test_time_offset_option_on_the_command_line_is_refused_with_one_line(tmp_pat
 
 def test_synth_writes_the_camera_offset_and_motion_distortion_it_is_given(tmp_path):
     seq = run_synth(
-        "vineyard", 2, 0, tmp_path, small=True, workers=1, camera_offset_ms=-12.5, motion_distortion=True
+        "vineyard",
+        3,
+        0,
+        tmp_path,
+        small=True,
+        workers=1,
+        camera_offset_ms=-12.5,
+        motion_distortion=True,
+        clock_drift_ms=10.0,
     )
     meta = json.loads((seq / "meta.json").read_text())
     assert meta["camera_offset_s"] == -0.0125 and meta["timing"]["motion_distortion"] is True
-    assert len(list((seq / "point_times").glob("*.bin"))) == 2
+    assert meta["camera_offsets_s"] == pytest.approx([-0.0125, -0.0075, -0.0025])  # the clock drifts 10 ms
+    assert len(list((seq / "point_times").glob("*.bin"))) == 3
