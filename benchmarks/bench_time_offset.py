@@ -20,7 +20,8 @@ and 90th-percentile errors, the ``δt`` error and the share of runs within 1 ms.
 and writes ``benchmarks/results/bench_time_offset.json``.
 
     .venv/bin/python benchmarks/bench_time_offset.py [--runs 4] [--worlds urban,vineyard]
-        [--offsets-ms default|-50,-20,0,5,20,50] [--level 2]
+        [--offsets-ms default|-50,-20,0,5,20,50] [--level 2] [--variants off,odometry,true motion]
+        [--name bench_time_offset]
 """
 
 from __future__ import annotations
@@ -121,6 +122,7 @@ def main() -> None:
     parser.add_argument("--offsets-ms", default="default", help="default, or comma-separated milliseconds")
     parser.add_argument("--level", default="2", choices=sorted(LEVELS))
     parser.add_argument("--variants", default=",".join(VARIANTS))
+    parser.add_argument("--name", default="bench_time_offset", help="results/NAME.json")
     args = parser.parse_args()
     offsets = [None] if args.offsets_ms == "default" else [float(v) / 1e3 for v in args.offsets_ms.split(",")]
     variants = args.variants.split(",")
@@ -160,7 +162,7 @@ def main() -> None:
             f"{_f(row['dt_within_1ms'], '6.0%')} {row['seconds_median']:5.0f}"
         )
     out = save_results(
-        "bench_time_offset", {"machine": platform.machine(), "level": args.level, "seed": SEED, "rows": rows}
+        args.name, {"machine": platform.machine(), "level": args.level, "seed": SEED, "rows": rows}
     )
     console.print(f"wrote {out}")
 
