@@ -228,7 +228,7 @@ def _plot(rows: list[dict], path: Path, title: str) -> None:
         ax.plot(*zip(*fitted, strict=True), ".", ms=5)
     if all("time_offset_truth_s" in r for r in rows):
         ax.plot(t, [1e3 * r["time_offset_truth_s"] for r in rows], "k--", lw=1)
-    ax.set_title("time offset δt ms (camera minus LiDAR; dashed: the stamps')", fontsize=9)
+    ax.set_title("δt ms, camera minus LiDAR (dashed: stamps)", fontsize=9)
     ax.grid(alpha=0.3)
     axes[1, 3].axis("off")
     for ax in axes[1, :3]:
