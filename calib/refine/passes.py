@@ -335,13 +335,11 @@ def refine_passes(
         matched = [_usable(matcher.match(frame, T), rules) for frame in at(dt)]
         return matched, _median_norm(np.concatenate([c.residual for c in matched]))
 
-    def fit(
-        points, targets, weights, scans, T: np.ndarray, dt: float | None, estimate_dt: bool
-    ) -> Refinement:
+    def fit(points, targets, weights, scans, T: np.ndarray, dt: float | None) -> Refinement:
         if timing is None:
             return refine_extrinsic(points, targets, weights, K, T, config.refine)
         result = refine_extrinsic(
-            points, targets, weights, K, T, config.refine, TimeModel(scans, twists, dt, estimate_dt)
+            points, targets, weights, K, T, config.refine, TimeModel(scans, twists, dt, timing.estimate)
         )
         if result.time_offset_std_s is not None and result.time_offset_std_s > timing.max_std_s:
             result = refine_extrinsic(
@@ -350,7 +348,7 @@ def refine_passes(
         return result
 
     def one_pass(
-        T: np.ndarray, dt: float | None, matched: list[Correspondences], alignment: float, estimate_dt: bool
+        T: np.ndarray, dt: float | None, matched: list[Correspondences], alignment: float
     ) -> tuple[Refinement, dict]:
         dropped = frame_outliers(
             np.array([_median_norm(c.residual) for c in matched]), rules.frame_factor, rules.frame_floor_px
@@ -368,7 +366,7 @@ def refine_passes(
             weights.append(w)
             scans.append(np.full(len(index), k))
         points, targets, weights, scans = (np.concatenate(x) for x in (points, targets, weights, scans))
-        first = fit(points, targets, weights, scans, T, dt, estimate_dt)
+        first = fit(points, targets, weights, scans, T, dt)
         keep = trim_points(np.linalg.norm(first.residuals, axis=1), rules.point_sigmas, rules.point_floor_px)
         result = fit(
             points[keep],
@@ -377,7 +375,6 @@ def refine_passes(
             scans[keep],
             first.T_cam_lidar,
             first.time_offset_s,
-            estimate_dt,
         )
         entry = {
             "iterations": first.iterations + result.iterations,
@@ -401,9 +398,7 @@ def refine_passes(
     if len(starts) > 1:
         for k, T_start in enumerate(starts):
             try:
-                result, entry = one_pass(
-                    T_start, dt, *matched_under(T_start, dt), estimate_dt=bool(timing and timing.estimate)
-                )
+                result, entry = one_pass(T_start, dt, *matched_under(T_start, dt))
             except NumericalError:  # a start where the matcher finds (almost) nothing
                 if k == len(starts) - 1 and all(probe[1] is None for probe in probes):
                     raise
@@ -449,7 +444,7 @@ def refine_passes(
                 break  # settled: the estimate hardly moved
         if len(history) == config.passes:
             break
-        result, entry = one_pass(T, dt, matched, alignment, estimate_dt=bool(timing and timing.estimate))
+        result, entry = one_pass(T, dt, matched, alignment)
         history.append(entry)
         fits.append((result, entry["correspondences"]))
         T_before, T, dt_before, dt = T, result.T_cam_lidar, dt, result.time_offset_s
