@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 
 from calib.errors import ConfigError, SupportnetError
-from supportnet.cli.options import Camera, Overwrite, in_range, seed_of, time_offset_setting
+from supportnet.cli.options import Camera, Milliseconds, Overwrite, in_range, seed_of, time_offset_setting
 
 app = typer.Typer(
     name="supportnet",
@@ -72,14 +72,11 @@ def synth(
             "(urban 1242x375, vineyard 960x540); replaces the camera of --config too.",
         ),
     ] = False,
-    camera_offset_ms: Annotated[
-        float | None,
-        typer.Option(
-            help="Camera exposure minus LiDAR stamp in ms, -1000 to 1000 (default: the world's, "
-            "urban 5, vineyard 20).",
-            callback=in_range("--camera-offset-ms", -1000, 1000),
-        ),
-    ] = None,
+    camera_offset_ms: Milliseconds(
+        "--camera-offset-ms",
+        "Camera exposure minus LiDAR stamp in ms, -1000 to 1000 (default: the world's, urban 5, "
+        "vineyard 20).",
+    ) = None,
     motion_distortion: Annotated[
         bool | None,
         typer.Option(
@@ -89,14 +86,11 @@ def synth(
             show_default=False,
         ),
     ] = None,
-    clock_drift_ms: Annotated[
-        float | None,
-        typer.Option(
-            help="The camera offset changes by this much (ms, -1000 to 1000), linearly, by the last "
-            "frame: a drifting clock.",
-            callback=in_range("--clock-drift-ms", -1000, 1000),
-        ),
-    ] = None,
+    clock_drift_ms: Milliseconds(
+        "--clock-drift-ms",
+        "The camera offset changes by this much (ms, -1000 to 1000), linearly, by the last frame: "
+        "a drifting clock.",
+    ) = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Write a synthetic sequence with ground truth: images, scans, point and pixel labels,

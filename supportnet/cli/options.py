@@ -13,7 +13,7 @@ from calib.seeds import check_seed
 if TYPE_CHECKING:  # the CLI imports torch only when a command runs
     from calib.refine.passes import TimeOffsetConfig
 
-__all__ = ["Camera", "Overwrite", "in_range", "seed_of", "time_offset_setting"]
+__all__ = ["Camera", "Milliseconds", "Overwrite", "in_range", "seed_of", "time_offset_setting"]
 
 Overwrite = Annotated[
     bool,
@@ -27,6 +27,11 @@ Camera = Annotated[
         "camera) or a ROS bag's image topic (default: its only one).",
     ),
 ]
+
+
+def Milliseconds(option: str, help: str) -> object:  # noqa: N802 (used as a type, like Camera)
+    """An optional ``float`` option in milliseconds, -1000 to 1000 (``--camera-offset-ms``)."""
+    return Annotated[float | None, typer.Option(option, help=help, callback=in_range(option, -1000, 1000))]
 
 
 def in_range(option: str, low: float, high: float) -> Callable[[float | None], float | None]:
