@@ -76,10 +76,6 @@ class ScanMotion:
         T = self.pose(t)
         return (points_stamp - T[:3, 3]) @ T[:3, :3]
 
-    @property
-    def moving(self) -> bool:
-        return bool(np.any(self.before) or np.any(self.after))
-
 
 def motions_from_poses(T_world_lidar: np.ndarray, stamps: np.ndarray, span: int = 1) -> list[ScanMotion]:
     """Piecewise-geodesic twists of a trajectory, one :class:`ScanMotion` per pose.

@@ -26,19 +26,12 @@ from calib.init.lidar_odometry import scan_motions
 from calib.init.motion_init import Stage1Config, Stage1Result, initial_calibration, load_stage1_config
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
-from calib.motion import ScanMotion, twist_spread
+from calib.motion import ScanMotion
 from calib.observability import weak_directions
 from calib.refine.contour_refine import contour_refine
 from calib.refine.frame_selection import contour_information, select_informative
 from calib.refine.global_search import global_search
-from calib.refine.passes import (
-    CalibrateConfig,
-    ScanTiming,
-    frames_at,
-    load_calibrate_config,
-    refine_passes,
-    sweep_model,
-)
+from calib.refine.passes import CalibrateConfig, ScanTiming, load_calibrate_config, refine_passes, scan_timing
 from calib.refine.tracking import OnlineState, departure, extrinsic_of
 from calib.results import CalibrationResult, OnlineEstimate
 from calib.support.source import SupportSource, UniformSupport
@@ -116,8 +109,6 @@ class Calibrator:
         odometry around each), or ``None`` and why the points stay as measured; ``δt`` starts at
         ``initial_s`` (Stage 1's) where given, else at the config's."""
         cfg = self.config.time_offset
-        if initial_s is not None:
-            cfg = cfg.model_copy(update={"initial_s": initial_s})
         if cfg.mode == "off":
             return None, "not modelled (time_offset.mode: off): points as measured"
         if isinstance(known, str):
@@ -131,16 +122,7 @@ class Calibrator:
             motions, why = scan_motions(seq, picks, cfg.neighbours)
             if motions is None:
                 return None, f"not modelled, points as measured: {why}"
-        estimate, note = cfg.mode == "estimate", ""
-        speed, turn = twist_spread(motions)
-        if estimate and speed < cfg.min_speed_spread_mps and turn < cfg.min_turn_spread_radps:
-            estimate = False
-            note = (
-                f"held at {cfg.initial_s:g} s: the frames' motion varies too little to tell it from a "
-                f"translation (speed spread {speed:.2f} m/s, turn-rate spread {turn:.3f} rad/s; needs "
-                f"{cfg.min_speed_spread_mps:g} or {cfg.min_turn_spread_radps:g})"
-            )
-        return ScanTiming(motions, cfg.initial_s, estimate, cfg.max_std_s, sweep_model(cfg)), note
+        return scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
 
     def calibrate(
         self,
@@ -173,11 +155,7 @@ class Calibrator:
         frames = [loaded[i] if i in loaded else seq[i] for i in picks]
         timing, timing_note = self._scan_timing(seq, picks, frames, motions, stage1_offset)
         # the coarse stages see the points at the camera's time under the initial δt
-        seen = (
-            frames
-            if timing is None
-            else frames_at(frames, timing.motions, timing.stamp_points(frames), timing.offset_s)
-        )
+        seen = frames if timing is None else timing.frames_at(frames, timing.offset_s)
         coarse_starts: dict[str, np.ndarray] = {}  # other starts for the passes, by origin
         coarse: list[dict] = []
         if self.config.coarse.enabled:  # Stage 4, coarse: edge alignment where the matcher cannot reach
@@ -344,15 +322,7 @@ class OnlineCalibrator:
         motions, _ = scan_motions(self._buffer, range(len(self._buffer)), cfg.neighbours)
         if motions is None:
             return None
-        speed, turn = twist_spread(motions)
-        moving = speed >= cfg.min_speed_spread_mps or turn >= cfg.min_turn_spread_radps
-        return ScanTiming(
-            motions,
-            self._state.time_offset_s,
-            cfg.mode == "estimate" and moving,
-            cfg.max_std_s,
-            sweep_model(cfg),
-        )
+        return scan_timing(self._buffer, motions, cfg, self._state.time_offset_s)[0]
 
 
 def _stamp_offset(frames: list[Frame]) -> float | None:

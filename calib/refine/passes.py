@@ -19,7 +19,7 @@ from calib.errors import DataError, NumericalError
 from calib.geometry import calibration_error, se3_exp, se3_log
 from calib.match.correspondences import Correspondences, Matcher
 from calib.match.edge_matcher import EdgeMatcherConfig
-from calib.motion import ScanMotion, sweep_times
+from calib.motion import ScanMotion, sweep_times, twist_spread
 from calib.projection import pixel_lookup
 from calib.refine.contour_refine import ContourRefineConfig
 from calib.refine.frame_selection import FrameSelectionConfig
@@ -38,9 +38,8 @@ __all__ = [
     "ScanTiming",
     "TimeOffsetConfig",
     "draw",
-    "sweep_model",
-    "frames_at",
     "refine_passes",
+    "scan_timing",
 ]
 
 
@@ -169,63 +168,82 @@ class CalibrateConfig(BaseModel):
 
 @dataclass(frozen=True)
 class ScanTiming:
-    """What moves each frame's points to the camera's time (:mod:`calib.motion`).
+    """What moves each frame's points to the camera's time (:mod:`calib.motion`); build it with
+    :meth:`of`, which deskews once for every matching that follows.
 
     Attributes:
         motions: one :class:`~calib.motion.ScanMotion` per frame (from LiDAR odometry).
+        stamp: each frame's points ``(N, 3)`` in the LiDAR frame at its stamp (deskewed).
         offset_s: ``δt`` to start from (or to hold). estimate: fit ``δt``.
         max_std_s: hold ``δt`` where its fitted standard deviation passes this.
-        sweep: per-point times from the points, for scans that record none
-            (:func:`~calib.motion.sweep_times` with the config's sweep).
     """
 
     motions: Sequence[ScanMotion]
+    stamp: Sequence[np.ndarray]
     offset_s: float = 0.0
     estimate: bool = True
     max_std_s: float = 0.002
-    sweep: Callable[[np.ndarray], np.ndarray] | None = None
 
-    def stamp_points(self, frames: Sequence[Frame]) -> list[np.ndarray]:
-        """Each frame's points ``(N, 3)`` in the LiDAR frame at its stamp: deskewed with the
-        frame's per-point times, else with ``sweep(points)`` (times from the azimuth) where given,
-        else as measured."""
-        out = []
-        for frame, motion in zip(frames, self.motions, strict=True):
+    @classmethod
+    def of(
+        cls,
+        frames: Sequence[Frame],
+        motions: Sequence[ScanMotion],
+        offset_s: float = 0.0,
+        estimate: bool = True,
+        max_std_s: float = 0.002,
+        sweep: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> ScanTiming:
+        """The timing of ``frames``: their points deskewed with each frame's per-point times,
+        else with ``sweep(points)`` (times from the azimuth) where given, else as measured."""
+        stamp = []
+        for frame, motion in zip(frames, motions, strict=True):
             points = frame.points[:, :3].astype(np.float64)
-            times = (
-                frame.point_times
-                if frame.point_times is not None or self.sweep is None
-                else self.sweep(points)
+            times = frame.point_times if frame.point_times is not None or sweep is None else sweep(points)
+            stamp.append(points if times is None else motion.deskew(points, times))
+        return cls(motions, stamp, offset_s, estimate, max_std_s)
+
+    def frames_at(self, frames: Sequence[Frame], offset_s: float) -> list[Frame]:
+        """``frames`` as the camera saw them: their points moved ``offset_s`` after each stamp."""
+        return [
+            replace(
+                frame,
+                points=np.column_stack([motion.at(q, offset_s), frame.points[:, 3:]]).astype(
+                    frame.points.dtype
+                ),
+                point_times=None,
             )
-            out.append(points if times is None else motion.deskew(points, times))
-        return out
+            for frame, motion, q in zip(frames, self.motions, self.stamp, strict=True)
+        ]
 
 
-def sweep_model(config: TimeOffsetConfig) -> Callable[[np.ndarray], np.ndarray] | None:
-    """Per-point times from the azimuth as ``config.sweep`` says, or ``None`` (``recorded``)."""
-    if config.sweep == "recorded":
-        return None
-    return partial(
-        sweep_times,
-        period_s=config.sweep_period_s,
-        clockwise=config.sweep == "clockwise",
-        stamp_azimuth_deg=config.sweep_stamp_azimuth_deg,
-    )
-
-
-def frames_at(
-    frames: Sequence[Frame], motions: Sequence[ScanMotion], stamp: Sequence[np.ndarray], offset_s: float
-) -> list[Frame]:
-    """``frames`` as the camera saw them: their points ``stamp`` (each frame's, in the LiDAR
-    frame at its stamp, :meth:`ScanTiming.stamp_points`) moved ``offset_s`` after the stamp."""
-    return [
-        replace(
-            frame,
-            points=np.column_stack([motion.at(q, offset_s), frame.points[:, 3:]]).astype(frame.points.dtype),
-            point_times=None,
+def scan_timing(
+    frames: Sequence[Frame], motions: Sequence[ScanMotion], config: TimeOffsetConfig, offset_s: float
+) -> tuple[ScanTiming, str]:
+    """The :class:`ScanTiming` that ``config`` asks for, starting at ``offset_s``, and ``""``; or,
+    where ``δt`` is to be estimated but the frames' motion varies too little to tell it from a
+    translation (:func:`~calib.motion.twist_spread` under both minimums), one that holds it, and
+    a line saying why."""
+    estimate, note = config.mode == "estimate", ""
+    speed, turn = twist_spread(motions)
+    if estimate and speed < config.min_speed_spread_mps and turn < config.min_turn_spread_radps:
+        estimate = False
+        note = (
+            f"held at {offset_s:g} s: the frames' motion varies too little to tell it from a "
+            f"translation (speed spread {speed:.2f} m/s, turn-rate spread {turn:.3f} rad/s; needs "
+            f"{config.min_speed_spread_mps:g} or {config.min_turn_spread_radps:g})"
         )
-        for frame, motion, q in zip(frames, motions, stamp, strict=True)
-    ]
+    sweep = (
+        None
+        if config.sweep == "recorded"
+        else partial(
+            sweep_times,
+            period_s=config.sweep_period_s,
+            clockwise=config.sweep == "clockwise",
+            stamp_azimuth_deg=config.sweep_stamp_azimuth_deg,
+        )
+    )
+    return ScanTiming.of(frames, motions, offset_s, estimate, config.max_std_s, sweep), note
 
 
 @dataclass(frozen=True)
@@ -322,14 +340,14 @@ def refine_passes(
     # the check needs residuals the matcher can still measure: beyond its reach they saturate
     reach_px = config.check_below_px * K[0, 0] / min(K[0, 0], config.edge.working_focal_px)
 
-    stamp = timing.stamp_points(frames) if timing is not None else None
+    stamp = timing.stamp if timing is not None else None
     twists = None if timing is None else np.stack([np.stack([m.before, m.after]) for m in timing.motions])
 
     def at(dt: float | None) -> Sequence[Frame]:
         """The frames as the camera saw them ``dt`` after each stamp."""
         if timing is None:
             return frames
-        return frames_at(frames, timing.motions, stamp, dt)
+        return timing.frames_at(frames, dt)
 
     def matched_under(T: np.ndarray, dt: float | None) -> tuple[list[Correspondences], float]:
         matched = [_usable(matcher.match(frame, T), rules) for frame in at(dt)]

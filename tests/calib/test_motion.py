@@ -14,7 +14,7 @@ def driving(speed: float = 8.0, yaw_rate: float = 0.3) -> np.ndarray:
 def test_still_motion_changes_nothing():
     points = np.random.default_rng(0).normal(size=(50, 3))
     still = ScanMotion.still()
-    assert not still.moving
+    assert not still.before.any() and not still.after.any()
     np.testing.assert_array_equal(still.at(points, 0.02), points)
     np.testing.assert_allclose(still.deskew(points, np.linspace(-0.05, 0.05, 50)), points)
 

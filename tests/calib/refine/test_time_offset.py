@@ -85,7 +85,7 @@ def _run(frames, motions, timing):
 
 def test_passes_recover_a_20ms_offset_from_deskewed_moving_scans():
     frames, motions = _timed_frames()
-    result = _run(frames, motions, ScanTiming(motions, 0.0, estimate=True))
+    result = _run(frames, motions, ScanTiming.of(frames, motions, 0.0, estimate=True))
     error = calibration_error(result.T_cam_lidar, T_TRUE)
     assert abs(result.time_offset_s - TRUE_OFFSET_S) < 2e-4
     assert error.translation_cm < 0.1 and error.rotation_deg < 0.01
@@ -102,7 +102,7 @@ def test_without_the_time_model_the_same_data_biases_the_extrinsic():
 def test_one_straight_constant_motion_for_all_frames_holds_the_offset():
     """δt · v is then a translation along v: not observable, so held at the start and said so."""
     frames, motions = _timed_frames(still=True)
-    result = _run(frames, motions, ScanTiming(motions, 0.0, estimate=True, max_std_s=0.002))
+    result = _run(frames, motions, ScanTiming.of(frames, motions, 0.0, estimate=True, max_std_s=0.002))
     assert result.time_offset_s == 0.0 and result.time_offset_std_s is None
 
 
