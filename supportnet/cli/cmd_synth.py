@@ -16,6 +16,7 @@ from calib.seeds import check_seed
 from calib.synth.generate import MAX_DRIFT, MAX_FRAMES, Synthesizer, write_sequence
 from calib.synth.synth_config import load_synth_config
 from supportnet.cli.console import make_console
+from supportnet.cli.options import in_range
 from supportnet.cli.output_dir import (
     claim_output,
     make_parents,
@@ -101,15 +102,15 @@ def run_synth(
         raise DataError(
             pose_file, f"already exists without {seq_dir}; remove it or choose another --sequence"
         )
-    if camera_offset_ms is not None and not -1000 <= camera_offset_ms <= 1000:  # False for NaN
-        raise ConfigError("--camera-offset-ms", f"must be from -1000 to 1000, got {camera_offset_ms}")
-    timing = {} if camera_offset_ms is None else {"camera_offset_s": camera_offset_ms / 1000}
+    timing = {}
+    for option, key, ms in (
+        ("--camera-offset-ms", "camera_offset_s", camera_offset_ms),
+        ("--clock-drift-ms", "camera_offset_drift_s", clock_drift_ms),
+    ):
+        if in_range(option, -1000, 1000)(ms) is not None:
+            timing[key] = ms / 1000
     if motion_distortion is not None:
         timing["motion_distortion"] = motion_distortion
-    if clock_drift_ms is not None:
-        if not -1000 <= clock_drift_ms <= 1000:  # False for NaN
-            raise ConfigError("--clock-drift-ms", f"must be from -1000 to 1000, got {clock_drift_ms}")
-        timing["camera_offset_drift_s"] = clock_drift_ms / 1000
     cfg = load_synth_config(world, config, small=small, **({"timing": timing} if timing else {}))
     start = time.perf_counter()
     synth = Synthesizer(cfg, frames, seed, drift)
