@@ -6,7 +6,11 @@ Everything is synthesised in a temporary folder with fixed seeds: Stage 4 on the
 the shipped predictor was trained on (``small=True``). Prints a table and writes
 benchmarks/results/accuracy.json.
 
-    python benchmarks/bench_accuracy.py [--runs 10] [--stage1-frames 300]
+    python benchmarks/bench_accuracy.py [--runs 10] [--stage1-frames 300] [--camera-offset-ms MS]
+        [--model OTHER.onnx] [--name accuracy]
+
+The table's last column is each support's median translation error over uniform's (the paper's
+Experiment 3 asks whether SGIS lowers it by at least 15 %: a ratio of 0.85 or less).
 """
 
 from __future__ import annotations
@@ -31,17 +35,23 @@ from supportnet.cli.cmd_synth import run_synth
 WORLDS = ("vineyard", "urban")
 
 
-def stage4(world: str, tmp: Path, runs: int, console: Console) -> dict:
+def stage4(
+    world: str, tmp: Path, runs: int, console: Console, offset_ms: float | None, model: Path | None
+) -> dict:
     data = tmp / world
-    run_synth(world, 80, 9, data, "09", console=console, small=True)
+    run_synth(world, 80, 9, data, "09", console=console, small=True, camera_offset_ms=offset_ms)
     maps = run_maps(data, "09", tmp / f"maps_{world}", load_maps_config(), console=console)
+    supports = f"uniform,offline:{maps},onnx" + (f",onnx:{model}" if model else "")
     result = run_calibrate(
-        data, "09", f"uniform,offline:{maps},onnx", "perturb:10,2", tmp / f"cal_{world}",
-        load_calibrate_config(), runs, console=console,
+        data, "09", supports, "perturb:10,2", tmp / f"cal_{world}", load_calibrate_config(), runs,
+        console=console,
     )  # fmt: skip
-    names = {"uniform": "uniform", "onnx": "sgis_predicted"}
+    names = {"uniform": "uniform", "onnx": "sgis_predicted", f"offline:{maps}": "sgis_offline"}
     return {
-        names.get(name, "sgis_offline"): {**r["summary"], "vs_uniform": result["paired_vs_uniform"].get(name)}
+        names.get(name, f"sgis_predicted:{Path(model).name}"): {
+            **r["summary"],
+            "vs_uniform": result["paired_vs_uniform"].get(name),
+        }
         for name, r in result["results"].items()
     }
 
@@ -67,27 +77,40 @@ def stage1(world: str, tmp: Path, frames: int, console: Console) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10)
-    parser.add_argument("--stage1-frames", type=int, default=300)
+    parser.add_argument("--stage1-frames", type=int, default=300, help="0: no Stage 1 benchmark")
+    parser.add_argument(
+        "--camera-offset-ms", type=float, default=None, help="Stage 4's camera offset (default: the worlds')"
+    )
+    parser.add_argument("--model", type=Path, default=None, help="another support predictor, run beside")
+    parser.add_argument("--name", default="accuracy", help="results/NAME.json")
     args = parser.parse_args()
     console = Console(stderr=True)
     with tempfile.TemporaryDirectory() as tmp:
         rows = {
-            "stage4": {w: stage4(w, Path(tmp), args.runs, console) for w in WORLDS},
-            "stage1": {w: stage1(w, Path(tmp), args.stage1_frames, console) for w in WORLDS},
+            "stage4": {
+                w: stage4(w, Path(tmp), args.runs, console, args.camera_offset_ms, args.model) for w in WORLDS
+            },
+            "stage1": {w: stage1(w, Path(tmp), args.stage1_frames, console) for w in WORLDS}
+            if args.stage1_frames
+            else {},
         }
     rows["runs"], rows["stage1_frames"] = args.runs, args.stage1_frames
+    rows["camera_offset_ms"] = args.camera_offset_ms
     print(f"Stage 4 from 10 cm / 2°, {args.runs} paired runs (mean / median)")
-    head = ("t cm mean", 9), ("median", 7), ("r ° mean", 9), ("median", 7), ("wins t/r", 9)
-    print(f"{'world':9} {'support':16} " + " ".join(f"{n:>{w}}" for n, w in head))
+    head = ("t cm mean", 9), ("median", 7), ("r ° mean", 9), ("median", 7), ("wins t/r", 9), ("t/unif", 7)
+    print(f"{'world':9} {'support':24} " + " ".join(f"{n:>{w}}" for n, w in head))
     for world, supports in rows["stage4"].items():
         for name, s in supports.items():
             t, r, wins = s["translation_cm"], s["rotation_deg"], s["vs_uniform"]
             won = f"{wins['translation_wins']}/{wins['rotation_wins']}" if wins else ""
+            uniform = supports["uniform"]["translation_cm"]["median"]
+            s["translation_median_over_uniform"] = t["median"] / uniform
             print(
-                f"{world:9} {name:16} {t['mean']:>9.2f} {t['median']:>7.2f} {r['mean']:>9.3f} "
-                f"{r['median']:>7.3f} {won:>9}"
+                f"{world:9} {name:24} {t['mean']:>9.2f} {t['median']:>7.2f} {r['mean']:>9.3f} "
+                f"{r['median']:>7.3f} {won:>9} {s['translation_median_over_uniform']:>7.2f}"
             )
-    print(f"Stage 1 on {args.stage1_frames} frames")
+    if rows["stage1"]:
+        print(f"Stage 1 on {args.stage1_frames} frames")
     for world, s in rows["stage1"].items():
         if "refused" in s:
             print(f"{world:9} refused: {s['refused']}")
@@ -97,7 +120,7 @@ def main() -> None:
                 f"({s['translation_source']}; hand–eye's own {s['hand_eye_translation_cm']:.0f} cm), "
                 f"{s['seconds']:.0f} s"
             )
-    save_results("accuracy", rows)
+    save_results(args.name, rows)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,26 @@ from supportnet.cli.options import Overwrite
 
 __all__ = ["register"]
 
+Accelerator = Annotated[
+    str | None,
+    typer.Option(help="auto (a GPU where there is one), cpu, gpu [default: the config's]."),
+]
+Devices = Annotated[
+    str | None, typer.Option(help="How many devices (or which: '0,1'); -1: all [default: the config's].")
+]
+Precision = Annotated[
+    str | None,
+    typer.Option(help="Lightning precision: 32-true, 16-mixed, bf16-mixed (GPUs) [default: the config's]."),
+]
+
+
+def _with_trainer(
+    overrides: list[str] | None, accelerator: str | None, devices: str | None, precision: str | None
+) -> list[str]:
+    """The ``key.sub=value`` overrides with the trainer flags after them (flags win)."""
+    flags = {"accelerator": accelerator, "devices": devices, "precision": precision}
+    return [*(overrides or []), *(f"trainer.{k}={v}" for k, v in flags.items() if v is not None)]
+
 
 def train(
     config: Annotated[
@@ -23,13 +43,16 @@ def train(
         list[str] | None,
         typer.Argument(help="key.sub=value overrides, e.g. trainer.max_epochs=5 data.batch_size=16."),
     ] = None,
+    accelerator: Accelerator = None,
+    devices: Devices = None,
+    precision: Precision = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Train the support predictor (Lightning) on offline maps: checkpoints, logs, learning curves."""
     from train.fit import run_train
     from train.train_config import load_train_config
 
-    run_train(load_train_config(config, overrides or []), overwrite)
+    run_train(load_train_config(config, _with_trainer(overrides, accelerator, devices, precision)), overwrite)
 
 
 def train_flow(
@@ -40,6 +63,9 @@ def train_flow(
         list[str] | None,
         typer.Argument(help="key.sub=value overrides, e.g. trainer.max_epochs=5 model.iterations=4."),
     ] = None,
+    accelerator: Accelerator = None,
+    devices: Devices = None,
+    precision: Precision = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Train the learned flow matcher (Lightning) on calibrated sequences: random extrinsic errors
@@ -47,7 +73,8 @@ def train_flow(
     from train.fit import run_train_flow
     from train.train_config import FlowTrainConfig, load_train_config
 
-    run_train_flow(load_train_config(config, overrides or [], FlowTrainConfig), overwrite)
+    overrides = _with_trainer(overrides, accelerator, devices, precision)
+    run_train_flow(load_train_config(config, overrides, FlowTrainConfig), overwrite)
 
 
 def register(app: typer.Typer) -> None:

@@ -174,6 +174,8 @@ def _trainer(t: TrainerConfig, root: Path, callbacks: list) -> L.Trainer:
         callbacks=callbacks,
         log_every_n_steps=t.log_every_n_steps,
         fast_dev_run=t.fast_dev_run,
-        deterministic=True,
+        # deterministic kernels wherever they exist; CUDA's bilinear backward has none, so a GPU run
+        # warns there instead of refusing to train
+        deterministic="warn",
         enable_model_summary=False,
     )

@@ -22,6 +22,7 @@ from calib.geometry import perturb
 from calib.match.correspondences import working_view
 from calib.projection import project_points, project_scan, render_image, transform_points
 from supportnet.runtime.flow_matcher import VISIBILITY, lidar_image
+from train.loaders import loader
 from train.train_config import FlowDataConfig, SequenceSource
 
 __all__ = ["FlowDataModule", "ScanFrames", "curriculum_bound", "flow_sample", "load_scans"]
@@ -176,7 +177,7 @@ class FlowDataModule(L.LightningDataModule):
         self._crops.bound = curriculum_bound(self.config, epoch, epochs)
 
     def train_dataloader(self) -> DataLoader:
-        return DataLoader(self._crops, batch_size=self.config.batch_size, num_workers=self.config.workers)
+        return loader(self._crops, self.config.batch_size, self.config.workers)
 
     def val_dataloader(self) -> DataLoader:
-        return DataLoader(self.val, batch_size=1, num_workers=self.config.workers)
+        return loader(self.val, 1, self.config.workers)

@@ -22,6 +22,7 @@ from calib.data import open_dataset
 from calib.errors import DataError
 from calib.support.map_files import check_maps_fingerprint, dataset_identity, load_frame_maps
 from supportnet.nets.map_targets import offline_target
+from train.loaders import loader
 from train.train_config import DataConfig, Source
 
 __all__ = ["FrameTargets", "SupportDataModule", "load_source"]
@@ -166,7 +167,7 @@ class SupportDataModule(L.LightningDataModule):
 
     def train_dataloader(self) -> DataLoader:
         data = _RandomCrops(self.train, self.config.crop, self.config.samples_per_epoch)
-        return DataLoader(data, batch_size=self.config.batch_size, num_workers=self.config.workers)
+        return loader(data, self.config.batch_size, self.config.workers)
 
     def val_dataloader(self) -> DataLoader:
-        return DataLoader(_WholeFrames(self.val), batch_size=1, num_workers=self.config.workers)
+        return loader(_WholeFrames(self.val), 1, self.config.workers)

@@ -68,9 +68,9 @@ class OptimConfig(_Group):
 
 class TrainerConfig(_Group):
     """Passed to ``lightning.Trainer``: ``accelerator: gpu, devices: 4, strategy: ddp`` trains on
-    four GPUs with the same file."""
+    four GPUs with the same file; ``auto`` takes a GPU where there is one, else the CPU."""
 
-    accelerator: str = "cpu"
+    accelerator: str = "auto"
     devices: int | str = 1
     strategy: str = "auto"
     precision: str = "32-true"

@@ -39,3 +39,16 @@ def test_flow_perturbation_sizes_are_finite_and_non_negative():
             load_train_config(None, [override], FlowTrainConfig)
     with pytest.raises(ConfigError, match="override: 'seed' is not key.sub=value"):
         load_train_config(None, ["seed"], TrainConfig)
+
+
+@pytest.mark.parametrize("schema", [TrainConfig, FlowTrainConfig])
+def test_trainer_flags_override_the_config_and_default_to_it(schema):
+    from train.cmd_train import _with_trainer
+
+    packaged = load_train_config(None, [], schema).trainer
+    assert packaged.accelerator == "auto"  # a GPU where there is one, with the same file
+    same = load_train_config(None, _with_trainer(["trainer.devices=2"], None, None, None), schema).trainer
+    assert (same.accelerator, same.devices, same.precision) == ("auto", 2, packaged.precision)
+    flags = _with_trainer(["trainer.devices=2"], "gpu", "0,1", "16-mixed")
+    trainer = load_train_config(None, flags, schema).trainer
+    assert (trainer.accelerator, trainer.devices, trainer.precision) == ("gpu", "0,1", "16-mixed")
