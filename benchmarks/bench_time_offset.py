@@ -12,6 +12,8 @@ the packaged config (10 of the stretch's frames, by information) three ways:
 
 - ``off``: the points as measured (``time_offset.mode: off``, what Stage 4 did before);
 - ``odometry``: ``--time-offset estimate``, the LiDAR's motion from KISS-ICP around each frame;
+- ``one δt start``: the same with one ``δt`` start (``time_offset.starts_ms: []``), as
+  before the further starts at ±25 ms existed;
 - ``true motion``: estimate with the world's own trajectory as the motion, which separates the
   odometry's error from the method's.
 
@@ -20,7 +22,8 @@ and 90th-percentile errors, the ``δt`` error and the share of runs within 1 ms.
 and writes ``benchmarks/results/bench_time_offset.json``.
 
     .venv/bin/python benchmarks/bench_time_offset.py [--runs 4] [--worlds urban,vineyard]
-        [--offsets-ms default|-50,-20,0,5,20,50] [--level 2] [--variants off,odometry,true motion]
+        [--offsets-ms default|-50,-20,0,5,20,50] [--level 2]
+        [--variants "off,odometry,one δt start,true motion"]
         [--name bench_time_offset]
 """
 
@@ -47,7 +50,7 @@ from calib.synth.synth_config import load_synth_config
 STRETCHES = {"urban": range(25, 70), "vineyard": range(55, 105)}
 SEED = 301
 """Unseen: training uses small seeds, bench_check 101–104, bench_real 201–202."""
-VARIANTS = ("off", "odometry", "true motion")
+VARIANTS = ("off", "odometry", "one δt start", "true motion")
 SUCCESS = (2.0, 0.2)
 
 console = Console(stderr=True, highlight=False, soft_wrap=True)
@@ -72,8 +75,10 @@ def one_run(frames, T_ref, truth_motions, offset_s, variant, level, run) -> dict
     generator = torch.Generator().manual_seed(zlib.crc32(f"dt/{level}/{run}".encode()))
     T_init = draw_start(T_ref, cm, deg, generator, False)
     base = load_calibrate_config()
-    mode = "off" if variant == "off" else "estimate"
-    config = base.model_copy(update={"time_offset": base.time_offset.model_copy(update={"mode": mode})})
+    timing = {"mode": "off" if variant == "off" else "estimate"}
+    if variant == "one δt start":
+        timing["starts_ms"] = ()
+    config = base.model_copy(update={"time_offset": base.time_offset.model_copy(update=timing)})
     start = time.perf_counter()
     result = Calibrator(config=config).calibrate(
         frames, T_init, seed=run, motions=truth_motions if variant == "true motion" else None
@@ -150,12 +155,12 @@ def main() -> None:
                     }
                 )
     print(
-        f"{'world':9} {'δt ms':>6} {'variant':12} {'runs':>4} {'success':>7} {'cm med':>7} {'cm p90':>7} "
+        f"{'world':9} {'δt ms':>6} {'variant':14} {'runs':>4} {'success':>7} {'cm med':>7} {'cm p90':>7} "
         f"{'° med':>6} {'° p90':>6} {'|δt err| med':>12} {'p90':>6} {'≤1 ms':>6} {'s':>5}"
     )
     for row in rows:
         print(
-            f"{row['world']:9} {row['offset_ms']:6g} {row['variant']:12} {row['runs']:4d} "
+            f"{row['world']:9} {row['offset_ms']:6g} {row['variant']:14} {row['runs']:4d} "
             f"{row['success']:7.0%} "
             f"{row['cm_median']:7.2f} {row['cm_p90']:7.2f} {row['deg_median']:6.3f} {row['deg_p90']:6.3f} "
             f"{_f(row['dt_error_ms_median'], '12.2f')} {_f(row['dt_error_ms_p90'], '6.2f')} "

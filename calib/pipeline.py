@@ -189,8 +189,9 @@ class Calibrator:
                 if timing.estimate
                 else f"held at {timing.offset_s:g} s (time_offset.mode: fixed); points moved to it"
             )
-        if coarse_starts:  # the passes went on from the start whose first pass ended best aligned
+        if passes.probe_alignments_px:  # the passes went on from the start whose first pass ended best
             origins = ["initial", *coarse_starts]
+            origins += [f"initial, δt {1e3 * s:+g} ms" for s in (timing.starts_s if timing else ())]
             coarse.append(
                 {
                     "stage": "choice",
@@ -322,7 +323,8 @@ class OnlineCalibrator:
         motions, _ = scan_motions(self._buffer, range(len(self._buffer)), cfg.neighbours)
         if motions is None:
             return None
-        return scan_timing(self._buffer, motions, cfg, self._state.time_offset_s)[0]
+        # one δt start: the running estimate, tracked across windows
+        return scan_timing(self._buffer, motions, cfg, self._state.time_offset_s, multi_start=False)[0]
 
 
 def _stamp_offset(frames: list[Frame]) -> float | None:

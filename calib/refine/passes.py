@@ -82,6 +82,20 @@ class TimeOffsetConfig(BaseModel):
         "the synthetic street) while it reads turn rates within 0.01 rad/s",
     )
     min_turn_spread_radps: float = Field(0.1, gt=0, description="see min_speed_spread_mps")
+    starts_ms: tuple[float, ...] = Field(
+        (-25.0, 25.0),
+        description="where δt is estimated, the first pass also runs from these offsets from the "
+        "starting δt (ms) and the passes go on from the start whose first pass ends best aligned: "
+        "from one start the joint fit reaches about ±20 ms, beyond that the extrinsic absorbs the "
+        "offset (the vineyard's 20 ms in a turn is a 1.2° rotation). Empty: one start",
+    )
+    start_margin: float = Field(
+        1.0,
+        gt=0,
+        le=1,
+        description="a δt start is taken when its first pass ends with at most this times the "
+        "median residual of the first pass from the starting δt (coarse_margin's rule for δt)",
+    )
     sweep: Literal["recorded", "clockwise", "counterclockwise"] = Field(
         "recorded",
         description="per-point times: as the scans record them (none: not deskewed), or, for a "
@@ -176,6 +190,8 @@ class ScanTiming:
         stamp: each frame's points ``(N, 3)`` in the LiDAR frame at its stamp (deskewed).
         offset_s: ``δt`` to start from (or to hold). estimate: fit ``δt``.
         max_std_s: hold ``δt`` where its fitted standard deviation passes this.
+        starts_s: further ``δt`` to start the first pass from (estimate only), and the margin
+            their first pass must beat the one from ``offset_s`` by (:class:`TimeOffsetConfig`).
     """
 
     motions: Sequence[ScanMotion]
@@ -183,6 +199,8 @@ class ScanTiming:
     offset_s: float = 0.0
     estimate: bool = True
     max_std_s: float = 0.002
+    starts_s: tuple[float, ...] = ()
+    start_margin: float = 1.0
 
     @classmethod
     def of(
@@ -193,6 +211,8 @@ class ScanTiming:
         estimate: bool = True,
         max_std_s: float = 0.002,
         sweep: Callable[[np.ndarray], np.ndarray] | None = None,
+        starts_s: tuple[float, ...] = (),
+        start_margin: float = 1.0,
     ) -> ScanTiming:
         """The timing of ``frames``: their points deskewed with each frame's per-point times,
         else with ``sweep(points)`` (times from the azimuth) where given, else as measured."""
@@ -201,7 +221,7 @@ class ScanTiming:
             points = frame.points[:, :3].astype(np.float64)
             times = frame.point_times if frame.point_times is not None or sweep is None else sweep(points)
             stamp.append(points if times is None else motion.deskew(points, times))
-        return cls(motions, stamp, offset_s, estimate, max_std_s)
+        return cls(motions, stamp, offset_s, estimate, max_std_s, starts_s if estimate else (), start_margin)
 
     def frames_at(self, frames: Sequence[Frame], offset_s: float) -> list[Frame]:
         """``frames`` as the camera saw them: their points moved ``offset_s`` after each stamp."""
@@ -218,12 +238,17 @@ class ScanTiming:
 
 
 def scan_timing(
-    frames: Sequence[Frame], motions: Sequence[ScanMotion], config: TimeOffsetConfig, offset_s: float
+    frames: Sequence[Frame],
+    motions: Sequence[ScanMotion],
+    config: TimeOffsetConfig,
+    offset_s: float,
+    multi_start: bool = True,
 ) -> tuple[ScanTiming, str]:
-    """The :class:`ScanTiming` that ``config`` asks for, starting at ``offset_s``, and ``""``; or,
-    where ``δt`` is to be estimated but the frames' motion varies too little to tell it from a
-    translation (:func:`~calib.motion.twist_spread` under both minimums), one that holds it, and
-    a line saying why."""
+    """The :class:`ScanTiming` that ``config`` asks for, starting at ``offset_s`` (and, with
+    ``multi_start``, at ``config.starts_ms`` from it), and ``""``; or, where ``δt`` is to be
+    estimated but the frames' motion varies too little to tell it from a translation
+    (:func:`~calib.motion.twist_spread` under both minimums), one that holds it, and a line
+    saying why."""
     estimate, note = config.mode == "estimate", ""
     speed, turn = twist_spread(motions)
     if estimate and speed < config.min_speed_spread_mps and turn < config.min_turn_spread_radps:
@@ -243,7 +268,11 @@ def scan_timing(
             stamp_azimuth_deg=config.sweep_stamp_azimuth_deg,
         )
     )
-    return ScanTiming.of(frames, motions, offset_s, estimate, config.max_std_s, sweep), note
+    starts = tuple(offset_s + ms / 1e3 for ms in config.starts_ms) if multi_start else ()
+    timing = ScanTiming.of(
+        frames, motions, offset_s, estimate, config.max_std_s, sweep, starts, config.start_margin
+    )
+    return timing, note
 
 
 @dataclass(frozen=True)
@@ -251,7 +280,8 @@ class PassesResult:
     """``T_cam_lidar (4, 4)`` and ``covariance (6, 6)`` of the last accepted pass; ``passes`` one
     dict per pass (iterations, cost, correspondences, alignment, update, accepted);
     ``correspondences`` used in the last accepted pass; ``start`` which start the passes took
-    (0: ``T_init``, then the alternatives) and ``probe_alignments_px`` the median residual after
+    (0: ``T_init``, then the alternatives, then ``T_init`` at the timing's further ``δt``
+    starts) and ``probe_alignments_px`` the median residual after
     the first pass from each (empty without alternatives; None where the matcher found too few
     correspondences to fit); ``time_offset_s`` and ``time_offset_std_s`` with a
     :class:`ScanTiming` (the std ``None`` where ``δt`` was held)."""
@@ -328,7 +358,9 @@ def refine_passes(
     ``δt``, and each fit estimates ``δt`` with the extrinsic from the first pass on (held where
     its standard deviation passes ``timing.max_std_s``: the frames' motion does not tell it from a
     translation). Holding it through the first pass was tried: the extrinsic then absorbs the
-    offset (the vineyard's 20 ms in a turn is a 1.2° rotation) and ``δt`` stays near 1 ms.
+    offset (the vineyard's 20 ms in a turn is a 1.2° rotation) and ``δt`` stays near 1 ms. The
+    timing's further ``δt`` starts (``T_init`` at each) are probed like the alternatives, each
+    taken only within ``timing.start_margin`` of the first pass from the starting ``δt``.
 
     Raises:
         NumericalError: too few correspondences to fit (from every start, with alternatives).
@@ -410,13 +442,18 @@ def refine_passes(
             entry["time_offset_std_s"] = result.time_offset_std_s  # None: held (not observable)
         return result, entry
 
-    starts = [np.asarray(T, np.float64) for T in (T_init, *alternatives)]
-    T, T_before, history, fits, pending, chosen, probes = starts[0], None, [], [], None, 0, []
     dt = dt_before = None if timing is None else timing.offset_s
+    T_init = np.asarray(T_init, np.float64)
+    # (extrinsic, δt, margin): the initial, the coarse stages' answers, the further δt starts
+    starts = [(T_init, dt, 1.0)]
+    starts += [(np.asarray(T, np.float64), dt, config.coarse_margin) for T in alternatives]
+    if timing is not None:
+        starts += [(T_init, other, timing.start_margin) for other in timing.starts_s]
+    T, T_before, history, fits, pending, chosen, probes = T_init, None, [], [], None, 0, []
     if len(starts) > 1:
-        for k, T_start in enumerate(starts):
+        for k, (T_start, dt_start, _) in enumerate(starts):
             try:
-                result, entry = one_pass(T_start, dt, *matched_under(T_start, dt))
+                result, entry = one_pass(T_start, dt_start, *matched_under(T_start, dt_start))
             except NumericalError:  # a start where the matcher finds (almost) nothing
                 if k == len(starts) - 1 and all(probe[1] is None for probe in probes):
                     raise
@@ -424,7 +461,7 @@ def refine_passes(
                 continue
             probes.append((T_start, result, entry, matched_under(result.T_cam_lidar, result.time_offset_s)))
         # the initial extrinsic (the user's, or Stage 1's) is a prior: another start must end its
-        # first pass clearly better aligned (median residual at most `coarse_margin` times the initial's)
+        # first pass clearly better aligned (median residual at most its margin times the initial's)
         after = np.array([probe[3][1] for probe in probes])
         # a start matched by few points can show a low median by luck (an aliased pose): it must
         # keep `coarse_min_share` of the initial's correspondences
@@ -432,11 +469,13 @@ def refine_passes(
             [sum(len(c) for c in probe[3][0]) if probe[1] is not None else 0 for probe in probes]
         )
         after[1:] = np.where(counts[1:] < config.coarse_min_share * counts[0], math.inf, after[1:])
-        best = int(np.argmin(after[1:])) + 1
-        chosen = best if after[best] <= config.coarse_margin * after[0] else 0  # inf: the initial failed
+        margins = np.array([margin for *_, margin in starts])
+        eligible = (after <= margins * after[0]) & np.isfinite(after)  # after[0] inf: the initial failed
+        eligible[0] = eligible[1:].sum() == 0  # the initial only where no other qualifies
+        chosen = int(np.argmin(np.where(eligible, after, math.inf)))
         T_before, result, entry, pending = probes[chosen]
         T, history, fits = result.T_cam_lidar, [entry], [(result, entry["correspondences"])]
-        dt = result.time_offset_s
+        dt, dt_before = result.time_offset_s, starts[chosen][1]
     while not (len(history) == config.passes and not config.check_passes):
         matched, alignment = pending if pending is not None else matched_under(T, dt)
         pending = None

@@ -45,14 +45,17 @@ def _timed_frames(still: bool = False) -> tuple[list[Frame], list[ScanMotion]]:
 
 class TimedMatcher:
     """Matches every point perfectly: its pixel is where the true extrinsic projects it at the
-    camera's true time (each frame's points arrive moved to the current δt, in order)."""
+    camera's true time, ``offset_s`` after the stamp (each frame's points arrive moved to the
+    current δt, in order)."""
 
     name = "timed"
 
-    def __init__(self, frames: list[Frame], motions: list[ScanMotion]) -> None:
+    def __init__(
+        self, frames: list[Frame], motions: list[ScanMotion], offset_s: float = TRUE_OFFSET_S
+    ) -> None:
         self.truth = {
             f.name: _project(
-                m.at(m.deskew(f.points[:, :3].astype(np.float64), f.point_times), TRUE_OFFSET_S), T_TRUE
+                m.at(m.deskew(f.points[:, :3].astype(np.float64), f.point_times), offset_s), T_TRUE
             )
             for f, m in zip(frames, motions, strict=True)
         }
@@ -69,13 +72,13 @@ class TimedMatcher:
         )
 
 
-def _run(frames, motions, timing):
+def _run(frames, motions, timing, offset_s=TRUE_OFFSET_S):
     T_init = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
     config = CalibrateConfig(passes=4, sampling={"per_frame": 1000})
     return refine_passes(
         frames,
         T_init,
-        TimedMatcher(frames, motions),
+        TimedMatcher(frames, motions, offset_s),
         UniformSupport(),
         config,
         np.random.default_rng(0),
@@ -90,6 +93,19 @@ def test_passes_recover_a_20ms_offset_from_deskewed_moving_scans():
     assert abs(result.time_offset_s - TRUE_OFFSET_S) < 2e-4
     assert error.translation_cm < 0.1 and error.rotation_deg < 0.01
     assert result.time_offset_std_s is not None and all("time_offset_s" in p for p in result.passes)
+
+
+def test_further_delta_t_starts_are_probed_and_the_best_aligned_goes_on():
+    """A 45 ms offset, starts at 0 and ±25 ms: each start's first pass is probed (one alignment
+    each) and the passes end at the truth from whichever was taken."""
+    frames, motions = _timed_frames()
+    timing = ScanTiming.of(frames, motions, 0.0, estimate=True, starts_s=(-0.025, 0.025))
+    result = _run(frames, motions, timing, offset_s=0.045)
+    assert len(result.probe_alignments_px) == 3 and result.start in (0, 1, 2)
+    assert abs(result.time_offset_s - 0.045) < 2e-4
+    assert calibration_error(result.T_cam_lidar, T_TRUE).translation_cm < 0.1
+    held = ScanTiming.of(frames, motions, 0.0, estimate=False, starts_s=(-0.025, 0.025))
+    assert held.starts_s == ()  # a held δt has nothing to probe
 
 
 def test_without_the_time_model_the_same_data_biases_the_extrinsic():
