@@ -46,13 +46,14 @@ def speed() -> list[str]:
             rows.append([f"map accumulation, {world}", f"{r['maps_frames_per_s']:.0f} frames/s"])
     if predictor := _load("predictor"):
         ort, eager = predictor["backends"]["onnxruntime"], predictor["backends"]["torch eager"]
-        rows.append(
-            [
-                "support predictor, 624x188",
-                f"onnxruntime {ort['ms_median']:.1f} ms, torch eager {eager['ms_median']:.1f} ms "
-                f"(ratio {eager['ms_median'] / ort['ms_median']:.2f}, same run)",
-            ]
-        )
+        for size in ort:
+            fast, slow = ort[size]["ms_median"], eager[size]["ms_median"]
+            rows.append(
+                [
+                    f"support predictor, {size}",
+                    f"onnxruntime {fast:.1f} ms, torch eager {slow:.1f} ms (ratio {slow / fast:.2f})",
+                ]
+            )
     if flow := _load("flow_matcher"):
         for name, r in flow["sequences"].items():
             rows.append([f"flow matcher, {name}", f"{r['flow']['ms_per_frame']:.0f} ms/frame (onnxruntime)"])

@@ -189,9 +189,15 @@ class Calibrator:
                 if timing.estimate
                 else f"held at {timing.offset_s:g} s (time_offset.mode: fixed); points moved to it"
             )
-        if passes.probe_alignments_px:  # the passes went on from the start whose first pass ended best
+            timing_note += "".join(
+                f"; restarted at δt {1e3 * r['time_offset_from_s']:.1f} ms (median residual "
+                f"{r['alignment_after_first_pass_px']:.2f} px after one pass, settled "
+                f"{r['alignment_before_px']:.2f} px)"
+                for r in passes.time_offset_restarts
+                if r["taken"]
+            )
+        if coarse_starts:  # the passes went on from the start whose first pass ended best aligned
             origins = ["initial", *coarse_starts]
-            origins += [f"initial, δt {1e3 * s:+g} ms" for s in (timing.starts_s if timing else ())]
             coarse.append(
                 {
                     "stage": "choice",
@@ -323,8 +329,8 @@ class OnlineCalibrator:
         motions, _ = scan_motions(self._buffer, range(len(self._buffer)), cfg.neighbours)
         if motions is None:
             return None
-        # one δt start: the running estimate, tracked across windows
-        return scan_timing(self._buffer, motions, cfg, self._state.time_offset_s, multi_start=False)[0]
+        # no δt restarts: the running estimate is tracked across windows
+        return scan_timing(self._buffer, motions, cfg, self._state.time_offset_s, restarts=False)[0]
 
 
 def _stamp_offset(frames: list[Frame]) -> float | None:

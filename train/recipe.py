@@ -21,6 +21,7 @@ Steps whose output exists are skipped, so an interrupted run continues where it 
 from __future__ import annotations
 
 import json
+import os
 import platform
 import time
 from collections.abc import Callable
@@ -68,6 +69,16 @@ def _trained(config: TrainConfig | FlowTrainConfig, run: Callable[..., dict], co
     return run(config, overwrite=True, console=console)
 
 
+def _hardware(config: TrainConfig | FlowTrainConfig) -> str:
+    """What trained it: the GPU where Lightning's accelerator took one, else the CPU's cores."""
+    import torch
+
+    cores = f"{os.cpu_count()} CPU cores"
+    if config.trainer.accelerator in ("auto", "gpu", "cuda") and torch.cuda.is_available():
+        return f"{torch.cuda.device_count()}x {torch.cuda.get_device_name(0)}, {cores}"
+    return f"CPU only, {cores}, {torch.get_num_threads()} torch threads"
+
+
 def _card(
     out: Path,
     report: dict,
@@ -87,6 +98,7 @@ def _card(
         "frames_per_sequence": frames,
         "training": {k: summary[k] for k in ("train_frames", "val_frames", "epochs", "minutes", best)},
         "machine": f"{platform.machine()} {platform.system()}, python {platform.python_version()}",
+        "hardware": _hardware(config),
         "recipe_minutes": (time.perf_counter() - start) / 60,
     }
 

@@ -70,7 +70,7 @@ def test_fast_dev_run_trains_exports_predicts_and_calibrates(tiny, tmp_path):
     report = export_onnx(ckpt, tmp_path / "model.onnx")
     assert report["max_abs_diff"] <= 1e-4
     predictor = SupportPredictor(tmp_path / "model.onnx")
-    assert predictor.contract.target == "support" and predictor.contract.stride == 8
+    assert predictor.contract.target == "support" and predictor.contract.stride == 16
     predicted = run_predict(
         tmp_path / "model.onnx", sources[1]["data"], "01", tmp_path / "pred", maps=sources[1]["maps"]
     )

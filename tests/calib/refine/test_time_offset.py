@@ -95,17 +95,20 @@ def test_passes_recover_a_20ms_offset_from_deskewed_moving_scans():
     assert result.time_offset_std_s is not None and all("time_offset_s" in p for p in result.passes)
 
 
-def test_further_delta_t_starts_are_probed_and_the_best_aligned_goes_on():
-    """A 45 ms offset, starts at 0 and ±25 ms: each start's first pass is probed (one alignment
-    each) and the passes end at the truth from whichever was taken."""
+def test_delta_t_restarts_are_probed_once_settled_and_kept_out_where_no_better():
+    """A 45 ms offset, reached from 0 (the matcher is exact): the restarts at the settled δt
+    ± 25 ms are each probed with one pass, recorded, and not taken (they cannot end better
+    aligned than the truth); the answer stays at the truth."""
     frames, motions = _timed_frames()
-    timing = ScanTiming.of(frames, motions, 0.0, estimate=True, starts_s=(-0.025, 0.025))
+    timing = ScanTiming.of(frames, motions, 0.0, estimate=True, restarts_s=(-0.025, 0.025))
     result = _run(frames, motions, timing, offset_s=0.045)
-    assert len(result.probe_alignments_px) == 3 and result.start in (0, 1, 2)
     assert abs(result.time_offset_s - 0.045) < 2e-4
     assert calibration_error(result.T_cam_lidar, T_TRUE).translation_cm < 0.1
-    held = ScanTiming.of(frames, motions, 0.0, estimate=False, starts_s=(-0.025, 0.025))
-    assert held.starts_s == ()  # a held δt has nothing to probe
+    restarts = result.time_offset_restarts
+    assert [round(r["time_offset_from_s"] - result.time_offset_s, 3) for r in restarts] == [-0.025, 0.025]
+    assert not any(r["taken"] for r in restarts) and not any(p.get("restart") for p in result.passes)
+    held = ScanTiming.of(frames, motions, 0.0, estimate=False, restarts_s=(-0.025, 0.025))
+    assert held.restarts_s == ()  # a held δt has nothing to restart
 
 
 def test_without_the_time_model_the_same_data_biases_the_extrinsic():
