@@ -191,8 +191,7 @@ class Calibrator:
             )
             timing_note += "".join(
                 f"; restarted at δt {1e3 * r['time_offset_from_s']:.1f} ms (median residual "
-                f"{r['alignment_after_first_pass_px']:.2f} px after one pass, settled "
-                f"{r['alignment_before_px']:.2f} px)"
+                f"{r['alignment_px']:.2f} px against the settled {r['alignment_before_px']:.2f} px)"
                 for r in passes.time_offset_restarts
                 if r["taken"]
             )

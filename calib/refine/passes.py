@@ -98,6 +98,14 @@ class TimeOffsetConfig(BaseModel):
         "answer's median residual (measured on the vineyard: 0.75-0.83 px against 0.91 px where "
         "δt had settled at 1 ms for 20)",
     )
+    restart_max_cm: float = Field(
+        10.0,
+        gt=0,
+        description="... and its answer's translation is within this of the settled one's: a "
+        "restart that moves it farther has traded δt·v for a translation along the motion (on the "
+        "urban street a −50 ms offset went to −4 ms and 37 cm with a lower median residual), "
+        "where the rescues it is for moved it 2-4 cm",
+    )
     sweep: Literal["recorded", "clockwise", "counterclockwise"] = Field(
         "recorded",
         description="per-point times: as the scans record them (none: not deskewed), or, for a "
@@ -192,8 +200,9 @@ class ScanTiming:
         stamp: each frame's points ``(N, 3)`` in the LiDAR frame at its stamp (deskewed).
         offset_s: ``δt`` to start from (or to hold). estimate: fit ``δt``.
         max_std_s: hold ``δt`` where its fitted standard deviation passes this.
-        restarts_s: shifts of the settled ``δt`` to restart from (estimate only), and the
-            margin a restart's pass must beat the settled answer by (:class:`TimeOffsetConfig`).
+        restarts_s: shifts of the settled ``δt`` to restart from (estimate only), the margin a
+            restart's pass must beat the settled answer by, and how far (cm) its answer's
+            translation may move from the settled one's (:class:`TimeOffsetConfig`).
     """
 
     motions: Sequence[ScanMotion]
@@ -203,6 +212,7 @@ class ScanTiming:
     max_std_s: float = 0.002
     restarts_s: tuple[float, ...] = ()
     restart_margin: float = 0.95
+    restart_max_cm: float = 10.0
 
     @classmethod
     def of(
@@ -215,6 +225,7 @@ class ScanTiming:
         sweep: Callable[[np.ndarray], np.ndarray] | None = None,
         restarts_s: tuple[float, ...] = (),
         restart_margin: float = 0.95,
+        restart_max_cm: float = 10.0,
     ) -> ScanTiming:
         """The timing of ``frames``: their points deskewed with each frame's per-point times,
         else with ``sweep(points)`` (times from the azimuth) where given, else as measured."""
@@ -224,7 +235,7 @@ class ScanTiming:
             times = frame.point_times if frame.point_times is not None or sweep is None else sweep(points)
             stamp.append(points if times is None else motion.deskew(points, times))
         restarts_s = restarts_s if estimate else ()
-        return cls(motions, stamp, offset_s, estimate, max_std_s, restarts_s, restart_margin)
+        return cls(motions, stamp, offset_s, estimate, max_std_s, restarts_s, restart_margin, restart_max_cm)
 
     def frames_at(self, frames: Sequence[Frame], offset_s: float) -> list[Frame]:
         """``frames`` as the camera saw them: their points moved ``offset_s`` after each stamp."""
@@ -273,7 +284,15 @@ def scan_timing(
     )
     shifts = tuple(ms / 1e3 for ms in config.restarts_ms) if restarts else ()
     timing = ScanTiming.of(
-        frames, motions, offset_s, estimate, config.max_std_s, sweep, shifts, config.restart_margin
+        frames,
+        motions,
+        offset_s,
+        estimate,
+        config.max_std_s,
+        sweep,
+        shifts,
+        config.restart_margin,
+        config.restart_max_cm,
     )
     return timing, note
 
@@ -287,7 +306,9 @@ class PassesResult:
     the first pass from each (empty without alternatives; None where the matcher found too few
     correspondences to fit); ``time_offset_s`` and ``time_offset_std_s`` with a
     :class:`ScanTiming` (the std ``None`` where ``δt`` was held); ``time_offset_restarts`` one
-    dict per ``δt`` restart (its ``δt``, the median residual before and after its pass, taken)."""
+    dict per ``δt`` restart (its ``δt``; the median residual of the settled answer, after its
+    first pass and, where that was better, after its passes; how far that moved the translation;
+    taken)."""
 
     T_cam_lidar: np.ndarray
     covariance: np.ndarray
@@ -364,8 +385,10 @@ def refine_passes(
     translation). Holding it through the first pass was tried: the extrinsic then absorbs the
     offset (the vineyard's 20 ms in a turn is a 1.2° rotation) and ``δt`` stays near 1 ms. So,
     once settled, the passes restart from the settled extrinsic with ``δt`` moved by each of
-    ``timing.restarts_s``: one pass each, and the passes go on from a restart whose pass ends
-    better aligned than the settled answer (``timing.restart_margin``). Starting the first pass
+    ``timing.restarts_s``: one pass each, the passes go on from a restart whose pass ends better
+    aligned than the settled answer (``timing.restart_margin``), and its answer replaces the
+    settled one where it ends better aligned still and its translation moved at most
+    ``timing.restart_max_cm``. Starting the first pass
     at other ``δt`` instead was tried: from the initial error the moved start's first pass ends
     worse aligned even where it leads to the truth, and it is not taken.
 
@@ -538,15 +561,20 @@ def refine_passes(
             restarts.append({**probe, "alignment_after_first_pass_px": None, "taken": False})
             continue
         probe_matched = matched_under(result.T_cam_lidar, result.time_offset_s)
-        taken = probe_matched[1] <= timing.restart_margin * alignment
-        restarts.append({**probe, "alignment_after_first_pass_px": probe_matched[1], "taken": bool(taken)})
+        probe["alignment_after_first_pass_px"] = probe_matched[1]
+        if not probe_matched[1] <= timing.restart_margin * alignment:
+            restarts.append({**probe, "taken": False})
+            continue
+        entry["restart"] = True
+        tried, tried_fits = [*history, entry], [*fits, (result, entry["correspondences"])]
+        T_new, dt_new, alignment_new = descend(
+            result.T_cam_lidar, result.time_offset_s, T, dt + shift, tried, tried_fits, probe_matched, 1
+        )
+        moved_cm = calibration_error(T_new, T).translation_cm
+        taken = alignment_new < alignment and moved_cm <= timing.restart_max_cm
+        restarts.append({**probe, "alignment_px": alignment_new, "moved_cm": moved_cm, "taken": taken})
         if taken:
-            entry["restart"] = True
-            history.append(entry)
-            fits.append((result, entry["correspondences"]))
-            T, dt, alignment = descend(
-                result.T_cam_lidar, result.time_offset_s, T, dt + shift, history, fits, probe_matched, 1
-            )
+            T, dt, alignment, history, fits = T_new, dt_new, alignment_new, tried, tried_fits
     accepted = [fit for fit, step in zip(fits, history, strict=True) if step["accepted"]] or fits
     last, correspondences = accepted[-1]
     return PassesResult(
