@@ -226,8 +226,13 @@ def _plot(rows: list[dict], path: Path, title: str) -> None:
     ]
     if fitted:
         ax.plot(*zip(*fitted, strict=True), ".", ms=5)
+    shown = [*dt, *(v for _, v in fitted)]
     if all("time_offset_truth_s" in r for r in rows):
-        ax.plot(t, [1e3 * r["time_offset_truth_s"] for r in rows], "k--", lw=1)
+        stamps = [1e3 * r["time_offset_truth_s"] for r in rows]
+        ax.plot(t, stamps, "k--", lw=1)
+        shown += stamps
+    # the band starts at the prior's ±100 ms: scale to the estimates, and the band up to 5 ms past them
+    ax.set_ylim(min(shown) - 5.0, max(shown) + 5.0)
     ax.set_title("δt ms, camera minus LiDAR (dashed: stamps)", fontsize=9)
     ax.grid(alpha=0.3)
     axes[1, 3].axis("off")
