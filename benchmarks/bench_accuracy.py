@@ -7,7 +7,8 @@ the shipped predictor was trained on (``small=True``). Prints a table and writes
 benchmarks/results/accuracy.json.
 
     python benchmarks/bench_accuracy.py [--runs 10] [--stage1-frames 300] [--camera-offset-ms MS]
-        [--model OTHER.onnx] [--name accuracy]
+        [--model OTHER.onnx] [--time-offset estimate|off|fixed:MS] [--supports uniform,offline,onnx]
+        [--worlds vineyard,urban] [--name accuracy]
 
 The table's last column is each support's median translation error over uniform's (the paper's
 Experiment 3 asks whether SGIS lowers it by at least 15 %: a ratio of 0.85 or less).
@@ -31,21 +32,30 @@ from supportnet.cli.cmd_calibrate import run_calibrate
 from supportnet.cli.cmd_init_calib import run_init_calib
 from supportnet.cli.cmd_maps import run_maps
 from supportnet.cli.cmd_synth import run_synth
+from supportnet.cli.options import time_offset_setting
 
 WORLDS = ("vineyard", "urban")
 
 
 def stage4(
-    world: str, tmp: Path, runs: int, console: Console, offset_ms: float | None, model: Path | None
+    world: str,
+    tmp: Path,
+    runs: int,
+    console: Console,
+    offset_ms: float | None,
+    model: Path | None,
+    time_offset: str,
+    supports: str,
 ) -> dict:
     data = tmp / world
     run_synth(world, 80, 9, data, "09", console=console, small=True, camera_offset_ms=offset_ms)
     maps = run_maps(data, "09", tmp / f"maps_{world}", load_maps_config(), console=console)
-    supports = f"uniform,offline:{maps},onnx" + (f",onnx:{model}" if model else "")
+    supports = supports.replace("offline", f"offline:{maps}") + (f",onnx:{model}" if model else "")
+    config = load_calibrate_config()
+    config = config.model_copy(update={"time_offset": time_offset_setting(time_offset, config.time_offset)})
     result = run_calibrate(
-        data, "09", supports, "perturb:10,2", tmp / f"cal_{world}", load_calibrate_config(), runs,
-        console=console,
-    )  # fmt: skip
+        data, "09", supports, "perturb:10,2", tmp / f"cal_{world}", config, runs, console=console
+    )
     names = {"uniform": "uniform", "onnx": "sgis_predicted", f"offline:{maps}": "sgis_offline"}
     return {
         names.get(name, f"sgis_predicted:{Path(model).name}"): {
@@ -82,20 +92,33 @@ def main() -> None:
         "--camera-offset-ms", type=float, default=None, help="Stage 4's camera offset (default: the worlds')"
     )
     parser.add_argument("--model", type=Path, default=None, help="another support predictor, run beside")
+    parser.add_argument("--time-offset", default="estimate", help="Stage 4's: off, estimate or fixed:MS")
+    parser.add_argument("--supports", default="uniform,offline,onnx", help="offline: seed 9's maps")
+    parser.add_argument("--worlds", default=",".join(WORLDS))
     parser.add_argument("--name", default="accuracy", help="results/NAME.json")
     args = parser.parse_args()
     console = Console(stderr=True)
     with tempfile.TemporaryDirectory() as tmp:
         rows = {
             "stage4": {
-                w: stage4(w, Path(tmp), args.runs, console, args.camera_offset_ms, args.model) for w in WORLDS
+                w: stage4(
+                    w,
+                    Path(tmp),
+                    args.runs,
+                    console,
+                    args.camera_offset_ms,
+                    args.model,
+                    args.time_offset,
+                    args.supports,
+                )
+                for w in args.worlds.split(",")
             },
             "stage1": {w: stage1(w, Path(tmp), args.stage1_frames, console) for w in WORLDS}
             if args.stage1_frames
             else {},
         }
     rows["runs"], rows["stage1_frames"] = args.runs, args.stage1_frames
-    rows["camera_offset_ms"] = args.camera_offset_ms
+    rows["camera_offset_ms"], rows["time_offset"] = args.camera_offset_ms, args.time_offset
     print(f"Stage 4 from 10 cm / 2°, {args.runs} paired runs (mean / median)")
     head = ("t cm mean", 9), ("median", 7), ("r ° mean", 9), ("median", 7), ("wins t/r", 9), ("t/unif", 7)
     print(f"{'world':9} {'support':24} " + " ".join(f"{n:>{w}}" for n, w in head))
