@@ -8,10 +8,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import torch
+from annotated_types import Ge, Le
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib.data.types import Frame
@@ -82,7 +83,7 @@ class TimeOffsetConfig(BaseModel):
         "the synthetic street) while it reads turn rates within 0.01 rad/s",
     )
     min_turn_spread_radps: float = Field(0.1, gt=0, description="see min_speed_spread_mps")
-    restarts_ms: tuple[float, ...] = Field(
+    restarts_ms: tuple[Annotated[float, Ge(-1000), Le(1000)], ...] = Field(
         (-25.0, 25.0),
         description="where δt is estimated, once the passes settle one more pass runs from the "
         "settled extrinsic with δt moved by each of these (ms), and the passes go on from there "
