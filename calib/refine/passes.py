@@ -201,9 +201,8 @@ class ScanTiming:
         stamp: each frame's points ``(N, 3)`` in the LiDAR frame at its stamp (deskewed).
         offset_s: ``δt`` to start from (or to hold). estimate: fit ``δt``.
         max_std_s: hold ``δt`` where its fitted standard deviation passes this.
-        restarts_s: shifts of the settled ``δt`` to restart from (estimate only), the margin a
-            restart's pass must beat the settled answer by, and how far (cm) its answer's
-            translation may move from the settled one's (:class:`TimeOffsetConfig`).
+        restarts_s: shifts of the settled ``δt`` to restart from (estimate only; how a restart
+            is judged: ``restart_margin`` and ``restart_max_cm`` of :class:`TimeOffsetConfig`).
     """
 
     motions: Sequence[ScanMotion]
@@ -212,8 +211,6 @@ class ScanTiming:
     estimate: bool = True
     max_std_s: float = 0.002
     restarts_s: tuple[float, ...] = ()
-    restart_margin: float = 0.95
-    restart_max_cm: float = 10.0
 
     @classmethod
     def of(
@@ -225,8 +222,6 @@ class ScanTiming:
         max_std_s: float = 0.002,
         sweep: Callable[[np.ndarray], np.ndarray] | None = None,
         restarts_s: tuple[float, ...] = (),
-        restart_margin: float = 0.95,
-        restart_max_cm: float = 10.0,
     ) -> ScanTiming:
         """The timing of ``frames``: their points deskewed with each frame's per-point times,
         else with ``sweep(points)`` (times from the azimuth) where given, else as measured."""
@@ -235,8 +230,7 @@ class ScanTiming:
             points = frame.points[:, :3].astype(np.float64)
             times = frame.point_times if frame.point_times is not None or sweep is None else sweep(points)
             stamp.append(points if times is None else motion.deskew(points, times))
-        restarts_s = restarts_s if estimate else ()
-        return cls(motions, stamp, offset_s, estimate, max_std_s, restarts_s, restart_margin, restart_max_cm)
+        return cls(motions, stamp, offset_s, estimate, max_std_s, restarts_s if estimate else ())
 
     def frames_at(self, frames: Sequence[Frame], offset_s: float) -> list[Frame]:
         """``frames`` as the camera saw them: their points moved ``offset_s`` after each stamp."""
@@ -284,18 +278,7 @@ def scan_timing(
         )
     )
     shifts = tuple(ms / 1e3 for ms in config.restarts_ms) if restarts else ()
-    timing = ScanTiming.of(
-        frames,
-        motions,
-        offset_s,
-        estimate,
-        config.max_std_s,
-        sweep,
-        shifts,
-        config.restart_margin,
-        config.restart_max_cm,
-    )
-    return timing, note
+    return ScanTiming.of(frames, motions, offset_s, estimate, config.max_std_s, sweep, shifts), note
 
 
 @dataclass(frozen=True)
@@ -387,9 +370,9 @@ def refine_passes(
     offset (the vineyard's 20 ms in a turn is a 1.2° rotation) and ``δt`` stays near 1 ms. So,
     once settled, the passes restart from the settled extrinsic with ``δt`` moved by each of
     ``timing.restarts_s``: one pass each, the passes go on from a restart whose pass ends better
-    aligned than the settled answer (``timing.restart_margin``), and its answer replaces the
-    settled one where it ends better aligned still and its translation moved at most
-    ``timing.restart_max_cm``. Starting the first pass
+    aligned than the settled answer (``config.time_offset.restart_margin``), and its answer
+    replaces the settled one where it ends better aligned still and its translation moved at
+    most ``config.time_offset.restart_max_cm``. Starting the first pass
     at other ``δt`` instead was tried: from the initial error the moved start's first pass ends
     worse aligned even where it leads to the truth, and it is not taken.
 
@@ -522,7 +505,7 @@ def refine_passes(
             alignment = matched_under(T, dt)[1]
         return T, dt, alignment
 
-    dt = None if timing is None else timing.offset_s
+    dt = dt_start = None if timing is None else timing.offset_s
     starts = [np.asarray(T, np.float64) for T in (T_init, *alternatives)]
     T, T_before, history, fits, pending, chosen, probes = starts[0], None, [], [], None, 0, []
     if len(starts) > 1:
@@ -549,10 +532,10 @@ def refine_passes(
         T_before, result, entry, pending = probes[chosen]
         T, history, fits = result.T_cam_lidar, [entry], [(result, entry["correspondences"])]
         dt = result.time_offset_s
-    dt_start = None if timing is None else timing.offset_s
     T, dt, alignment = descend(T, dt, T_before, dt_start, history, fits, pending, len(history))
     restarts = []
-    for shift in timing.restarts_s if timing is not None and dt is not None else ():
+    judge = config.time_offset  # how a restart is taken
+    for shift in timing.restarts_s if timing is not None else ():
         # settled, perhaps where the extrinsic absorbed the offset: one pass from δt + shift
         # under the settled extrinsic, and the passes go on from there where it ends better aligned
         probe = {"time_offset_from_s": dt + shift, "alignment_before_px": alignment}
@@ -563,7 +546,7 @@ def refine_passes(
             continue
         probe_matched = matched_under(result.T_cam_lidar, result.time_offset_s)
         probe["alignment_after_first_pass_px"] = probe_matched[1]
-        if not probe_matched[1] <= timing.restart_margin * alignment:
+        if not probe_matched[1] <= judge.restart_margin * alignment:
             restarts.append({**probe, "taken": False})
             continue
         entry["restart"] = True
@@ -572,7 +555,7 @@ def refine_passes(
             result.T_cam_lidar, result.time_offset_s, T, dt + shift, tried, tried_fits, probe_matched, 1
         )
         moved_cm = calibration_error(T_new, T).translation_cm
-        taken = alignment_new < alignment and moved_cm <= timing.restart_max_cm
+        taken = alignment_new < alignment and moved_cm <= judge.restart_max_cm
         restarts.append({**probe, "alignment_px": alignment_new, "moved_cm": moved_cm, "taken": taken})
         if taken:
             T, dt, alignment, history, fits = T_new, dt_new, alignment_new, tried, tried_fits
