@@ -57,8 +57,10 @@ def stage4(
         data, "09", supports, "perturb:10,2", tmp / f"cal_{world}", config, runs, console=console
     )
     names = {"uniform": "uniform", "onnx": "sgis_predicted", f"offline:{maps}": "sgis_offline"}
+    if model:
+        names[f"onnx:{model}"] = f"sgis_predicted:{Path(model).name}"
     return {
-        names.get(name, f"sgis_predicted:{Path(model).name}"): {
+        names[name]: {
             **r["summary"],
             "vs_uniform": result["paired_vs_uniform"].get(name),
         }
