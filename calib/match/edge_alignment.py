@@ -4,6 +4,17 @@ from the image's edge map blurred at a scale ``σ``. A correct extrinsic puts co
 (Levinson & Thrun's edge alignment; koide3's tool uses NID the same way); the blur widens the
 basin, so a pyramid of ``σ`` from tens of pixels down to one or two finds the peak from far away.
 
+Three things keep the score's peak at the true extrinsic rather than where contours merely meet
+many edges: the blurred map has its surround (a blur ``surround`` times wider) subtracted, so
+evenly textured regions (foliage, facades, noise) and the world outside the image both score 0
+and only edges that stand out of their neighbourhood count; each contour point sits on the ray
+midway between the last foreground and the first background return, where the silhouette lies
+on average (the foreground return itself lies half a beam step inside it, one way on left edges
+and the other on right ones); and only contour points that the search can bring into view are
+drawn (``view``), so the points kept per frame are the ones that can count. On the synthetic
+urban world at KITTI's scale the plain score rated extrinsics 10–20° off above the truth at every
+blur; with the three, its peak at 2 px blur lies within 0.2° and 4 cm of the truth.
+
 Stage 4's global coarse search (:mod:`calib.refine.global_search`) climbs this score, and
 ``check`` compares it around a given extrinsic. Every frame's contours and blurred edge maps are
 stacked, so one call scores ``C`` candidate extrinsics over all frames at once.
@@ -38,14 +49,50 @@ def edge_strength(image: np.ndarray, blur_px: float = 1.0) -> np.ndarray:
     return np.clip(magnitude / max(float(np.percentile(magnitude, 99)), 1e-6), 0.0, 1.0)
 
 
-def contour_points(points: np.ndarray, limit: int, rng: np.random.Generator) -> np.ndarray:
-    """``(M, 3)`` occluding-contour points of a scan (the nearer side of each depth
-    discontinuity, :func:`calib.features.depth_discontinuities`), at most ``limit`` of them drawn
-    at random."""
-    nearer, _ = depth_discontinuities(points)
-    if len(nearer) > limit:
-        nearer = rng.choice(nearer, limit, replace=False)
-    return np.asarray(points[np.sort(nearer), :3], np.float64)
+def _within_view(
+    points_cam: np.ndarray, K: np.ndarray, size: tuple[int, int], margin_deg: float
+) -> np.ndarray:
+    """``(N,)`` bool: camera-frame points in front whose horizontal and vertical view angles lie
+    within the image's half angles (about the principal point, its wider side) plus ``margin_deg``."""
+    H, W = size
+    half_u = np.degrees(np.arctan2(max(K[0, 2], W - K[0, 2]), K[0, 0]))
+    half_v = np.degrees(np.arctan2(max(K[1, 2], H - K[1, 2]), K[1, 1]))
+    x, y, z = points_cam.T
+    return (
+        (z > 0)
+        & (np.abs(np.degrees(np.arctan2(x, z))) < half_u + margin_deg)
+        & (np.abs(np.degrees(np.arctan2(y, z))) < half_v + margin_deg)
+    )
+
+
+def contour_points(
+    points: np.ndarray,
+    limit: int,
+    rng: np.random.Generator,
+    view: tuple[Frame, np.ndarray, float] | None = None,
+) -> np.ndarray:
+    """``(M, 3)`` occluding-contour points of a scan: of each depth discontinuity
+    (:func:`calib.features.depth_discontinuities`), the point at the nearer return's range on the
+    ray midway between the two returns; at most ``limit`` of them drawn at random.
+
+    Args:
+        points: ``(N, 3+)`` the scan.
+        view: ``(frame, T_cam_lidar, margin_deg)``: keep only the points within the frame's view
+            under ``T_cam_lidar`` widened by ``margin_deg``.
+    """
+    nearer, farther = depth_discontinuities(points)
+    xyz = np.asarray(points[:, :3], np.float64)
+    near, far = xyz[nearer], xyz[farther]
+    rng_near = np.linalg.norm(near, axis=1, keepdims=True)
+    middle = near / rng_near + far / np.linalg.norm(far, axis=1, keepdims=True)
+    contour = middle / np.linalg.norm(middle, axis=1, keepdims=True) * rng_near
+    if view is not None:
+        frame, T, margin_deg = view
+        points_cam = contour @ T[:3, :3].T + T[:3, 3]
+        contour = contour[_within_view(points_cam, frame.K, frame.image_size, margin_deg)]
+    if len(contour) > limit:
+        contour = contour[np.sort(rng.choice(len(contour), limit, replace=False))]
+    return contour
 
 
 class EdgeAlignment:
@@ -54,10 +101,19 @@ class EdgeAlignment:
     Args:
         frames: the frames. max_points: contour points kept per frame. seed: their draw.
         kind: the edge map, ``magnitude`` or ``orientation`` (module docstring).
+        view: ``(T_cam_lidar (4, 4), margin_deg)``: draw only contour points within each frame's
+            view under ``T_cam_lidar`` widened by ``margin_deg`` (all of the scan when None).
+        surround: the blur subtracted from each map, in multiples of ``σ`` (0: none).
     """
 
     def __init__(
-        self, frames: Sequence[Frame], max_points: int = 1500, seed: int = 0, kind: str = "magnitude"
+        self,
+        frames: Sequence[Frame],
+        max_points: int = 1500,
+        seed: int = 0,
+        kind: str = "magnitude",
+        view: tuple[np.ndarray, float] | None = None,
+        surround: float = 3.0,
     ) -> None:
         if not frames:
             raise DataError("frames", "edge alignment needs at least one frame")
@@ -66,7 +122,8 @@ class EdgeAlignment:
         self.K = torch.as_tensor(frames[0].K, dtype=torch.float64)
         self.size = frames[0].image_size
         rng = np.random.default_rng(seed)
-        clouds = [contour_points(f.points, max_points, rng) for f in frames]
+        views = [None if view is None else (f, np.asarray(view[0]), view[1]) for f in frames]
+        clouds = [contour_points(f.points, max_points, rng, v) for f, v in zip(frames, views, strict=True)]
         count = max(1, max(len(c) for c in clouds))
         self.points = torch.zeros(len(frames), count, 3, dtype=torch.float64)
         self.mask = torch.zeros(len(frames), count, dtype=torch.bool)
@@ -77,16 +134,19 @@ class EdgeAlignment:
         self.edges = [
             edge_strength(f.image) if kind == "magnitude" else image_edges(f.image)[0] for f in frames
         ]
+        self.surround = surround
         self._maps: dict[float, torch.Tensor] = {}
 
     def maps(self, sigma_px: float) -> torch.Tensor:
-        """``(F, 1, H, W)`` edge maps blurred by ``σ`` and renormalised to a peak of 1 (of ``|·|``:
-        the orientation map is signed)."""
+        """``(F, 1, H, W)`` edge maps blurred by ``σ``, less their blur by ``surround · σ``,
+        renormalised to a peak of 1 (of ``|·|``: both maps can be negative)."""
         key = round(float(sigma_px), 3)
         if key not in self._maps:
             blurred = []
             for e in self.edges:
                 b = cv2.GaussianBlur(e, (0, 0), sigma_px) if sigma_px > 0 else e
+                if self.surround > 0:
+                    b = b - cv2.GaussianBlur(e, (0, 0), self.surround * max(sigma_px, 1.0))
                 blurred.append(b / max(float(np.abs(b).max()), 1e-6))
             self._maps[key] = torch.from_numpy(np.stack(blurred))[:, None].float()
         return self._maps[key]

@@ -48,6 +48,12 @@ class GlobalSearchConfig(BaseModel):
     depth_m: float = Field(10.0, gt=0, description="typical depth: translation step = rotation step x this")
     max_translation_m: float = Field(1.0, gt=0, description="translation never leaves the start by more")
     contour_points: int = Field(1200, ge=10, description="contour points per frame")
+    view_margin_deg: float = Field(
+        15.0, ge=0, description="contour points drawn within the start's view widened by this"
+    )
+    surround: float = Field(
+        3.0, ge=0, description="each edge map less its blur this many times wider (texture scores 0)"
+    )
     max_iterations: int = Field(40, ge=1, description="climbing moves per scale")
 
 
@@ -101,7 +107,13 @@ def global_search(
     """Climb the edge-alignment score with the edge map ``kind`` from ``T_init (4, 4)`` over
     ``frames`` (one shared ``K``)."""
     config = config if config is not None else GlobalSearchConfig()
-    score = EdgeAlignment(frames, config.contour_points, kind=kind)
+    score = EdgeAlignment(
+        frames,
+        config.contour_points,
+        kind=kind,
+        view=(np.asarray(T_init, np.float64), config.view_margin_deg),
+        surround=config.surround,
+    )
     focal = float(frames[0].K[0, 0])
     T_start = torch.as_tensor(np.asarray(T_init, np.float64))
     T, levels = T_start, []

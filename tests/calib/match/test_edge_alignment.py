@@ -4,7 +4,8 @@ import torch
 
 from calib.data.types import Frame
 from calib.errors import DataError
-from calib.match.edge_alignment import EdgeAlignment
+from calib.geometry import se3_exp
+from calib.match.edge_alignment import EdgeAlignment, contour_points
 
 
 def _frame_with(image: np.ndarray, small_urban) -> Frame:
@@ -32,21 +33,51 @@ def test_orientation_map_is_positive_on_vertical_edges_negative_on_horizontal(sm
         assert sign * value > 0.9  # the edge is the map's peak (renormalised to 1)
 
 
-def test_orientation_map_cancels_texture_that_magnitude_counts(small_urban):
-    """Random texture beside one vertical edge: under a 4 px blur the magnitude map rates the
-    texture about as high as the edge, the orientation map far lower (its angles cancel)."""
+def _texture_over_edge(small_urban, kind: str, surround: float) -> float:
+    """Random texture beside one vertical edge: the map's mean over the texture over its mean on
+    the edge, under a 4 px blur."""
     H, W = small_urban[0].image_size
     image = _steps((H, W), vertical=True)
     texture = np.random.default_rng(0).integers(0, 255, (H, W // 4), np.uint8)
     image[:, : W // 4] = texture[..., None]
-    frame = _frame_with(image, small_urban)
-    ratios = {}
-    for kind in ("magnitude", "orientation"):
-        edge_map = EdgeAlignment([frame], kind=kind).maps(4.0)[0, 0].abs()
-        inner = edge_map[H // 4 : 3 * H // 4]
-        ratios[kind] = float(inner[:, 10 : W // 4 - 10].mean() / inner[:, W // 2 - 1 : W // 2 + 1].mean())
-    assert ratios["magnitude"] > 0.5
-    assert ratios["orientation"] < 0.2
+    score = EdgeAlignment([_frame_with(image, small_urban)], kind=kind, surround=surround)
+    edge_map = score.maps(4.0)[0, 0].abs()
+    inner = edge_map[H // 4 : 3 * H // 4]
+    return float(inner[:, 10 : W // 4 - 10].mean() / inner[:, W // 2 - 1 : W // 2 + 1].mean())
+
+
+def test_orientation_map_cancels_texture_that_magnitude_counts(small_urban):
+    """Without the surround subtracted, the magnitude map rates texture about as high as an edge;
+    the orientation map far lower (its angles cancel)."""
+    assert _texture_over_edge(small_urban, "magnitude", surround=0.0) > 0.5
+    assert _texture_over_edge(small_urban, "orientation", surround=0.0) < 0.2
+
+
+@pytest.mark.parametrize("kind", ["magnitude", "orientation"])
+def test_surround_cancels_texture_in_both_maps(small_urban, kind):
+    assert _texture_over_edge(small_urban, kind, surround=3.0) < 0.2
+
+
+def test_contour_point_lies_midway_between_the_returns_at_the_nearer_range():
+    """One scan line: a wall at 5 m in front of a wall at 20 m; the occluding contour lies on the
+    ray halfway between the last wall return and the first background return, at 5 m."""
+    azimuth = np.radians(np.arange(-10.0, 10.0, 0.5))
+    ranges = np.where(azimuth < np.radians(0.1), 5.0, 20.0)
+    points = np.stack([ranges * np.cos(azimuth), ranges * np.sin(azimuth), np.zeros_like(azimuth)], -1)
+    contour = contour_points(points, 10, np.random.default_rng(0))
+    assert contour.shape == (1, 3)
+    np.testing.assert_allclose(np.linalg.norm(contour[0]), 5.0, rtol=1e-9)
+    np.testing.assert_allclose(np.degrees(np.arctan2(contour[0, 1], contour[0, 0])), 0.25, atol=1e-9)
+
+
+def test_contour_points_outside_the_widened_view_are_not_drawn(small_urban):
+    frame = small_urban[0]
+    T = np.asarray(frame.calibration.T_cam_lidar)
+    every = contour_points(frame.points, 10**6, np.random.default_rng(0))
+    seen = contour_points(frame.points, 10**6, np.random.default_rng(0), (frame, T, 5.0))
+    assert 0 < len(seen) < len(every)
+    q = seen @ T[:3, :3].T + T[:3, 3]
+    assert (q[:, 2] > 0).all()  # nothing behind the camera
 
 
 def test_unknown_kind_is_refused(small_urban):
@@ -59,3 +90,22 @@ def test_score_shape_over_candidates(small_urban):
     score = EdgeAlignment(small_urban, kind="orientation")
     assert score(T.expand(5, 4, 4), 4.0).shape == (5,)
     assert score.per_frame(T, 4.0).shape == (1, 2)
+
+
+@pytest.mark.parametrize("kind", ["magnitude", "orientation"])
+def test_truth_scores_best_and_the_surround_sharpens_its_peak(small_urban, kind):
+    """Moves of ±5 cm and ±0.5° along each axis from the true extrinsic score lower than the
+    truth, and lower still relative to it once the surround is subtracted."""
+    T = torch.as_tensor(small_urban[0].calibration.T_cam_lidar)
+    moves = torch.zeros(12, 6, dtype=torch.float64)
+    for axis in range(6):
+        step = 0.05 if axis < 3 else np.radians(0.5)
+        moves[2 * axis, axis], moves[2 * axis + 1, axis] = step, -step
+    candidates = torch.cat([T[None], se3_exp(moves) @ T])
+    sigma = 2.0 * small_urban[0].K[0, 0] / 721.0
+    relative = {}
+    for surround in (0.0, 3.0):
+        values = EdgeAlignment(small_urban, 1200, kind=kind, surround=surround)(candidates, sigma)
+        assert int(values.argmax()) == 0
+        relative[surround] = float((values[1:] / values[0]).mean())
+    assert relative[3.0] < relative[0.0] - 0.1
