@@ -18,7 +18,8 @@ of dataset / level / run, so both variants start from the same draws. Variants: 
 packaged ``calibrate.yaml`` with the global coarse stage off: the dense passes alone) and ``global``
 (the packaged ``calibrate.yaml``: the global coarse stage with each of its edge maps, then the
 dense passes, which go on from the start, initial or coarse, that their first pass aligns best,
-a coarse one only when clearly so). A run
+a coarse one only when clearly so), ``global-pyramid`` (the same with the dense passes run first at
+working focal lengths of 90 and 180 px) and the ``contour`` ones. A run
 succeeds when it ends within 2 cm and 0.2° of the reference (several frames) or 5 cm and 0.5°
 (one frame); a run whose pipeline raises counts as a failure
 and its message is kept. Prints a table, one progress line per run to stderr, and writes
@@ -62,7 +63,10 @@ VARIANTS = {
     "global": "global+dense",  # the packaged calibrate.yaml
     "contour": "contour+dense",
     "global-contour": "global+contour+dense",
+    "global-pyramid": "global+pyramid+dense",
 }
+PYRAMID_FOCALS_PX = (90.0, 180.0)
+"""The ``pyramid`` variants' coarser working focal lengths (``pyramid_focals_px``)."""
 ALL6 = "kitti-raw-0928-all6"
 KITTI_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
 ZED_HALF = {"width": 960, "height": 540, "fx": 527.0, "fy": 527.0, "cx": 479.5, "cy": 269.5}
@@ -86,8 +90,8 @@ class Dataset:
 
 
 def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
-    """Each variant's config: the packaged one with the global coarse stage and the contour
-    refinement switched on as the name says."""
+    """Each variant's config: the packaged one with the global coarse stage, the contour
+    refinement and the matcher pyramid (:data:`PYRAMID_FOCALS_PX`) switched on as the name says."""
     base = load_calibrate_config()
 
     def switched(name: str) -> CalibrateConfig:
@@ -96,6 +100,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
             update={
                 "coarse": base.coarse.model_copy(update={"enabled": "global" in stages}),
                 "contour": base.contour.model_copy(update={"enabled": "contour" in stages}),
+                "pyramid_focals_px": PYRAMID_FOCALS_PX if "pyramid" in stages else (),
             }
         )
 

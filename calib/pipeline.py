@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from collections.abc import Sequence as FrameList
+from dataclasses import replace
 
 import numpy as np
 
@@ -54,6 +55,19 @@ def default_matcher(config: CalibrateConfig) -> Matcher:
             "matcher", f"{config.matcher!r} is a learned matcher: pass matcher= or use supportnet"
         )
     return EdgeMatcher(config.edge)
+
+
+def _pyramid_entry(focal: float, passes: list[dict]) -> dict:
+    """A pyramid level's line in ``result.coarse``: its working focal length, how many passes it
+    ran and the median residual (working px) before its first and after its last accepted one."""
+    accepted = [p for p in passes if p.get("accepted", True)]
+    return {
+        "stage": "pyramid",
+        "working_focal_px": focal,
+        "passes": len(passes),
+        "alignment_px": passes[0].get("alignment_px") if passes else None,
+        "alignment_after_px": accepted[-1].get("alignment_after_px") if accepted else None,
+    }
 
 
 class Calibrator:
@@ -124,6 +138,14 @@ class Calibrator:
                 return None, f"not modelled, points as measured: {why}"
         return scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
 
+    def _pyramid_focals(self) -> list[float]:
+        """The coarser working focal lengths the edge matcher's passes run at first (none for
+        another matcher)."""
+        if not isinstance(self.matcher, EdgeMatcher):
+            return []
+        finest = self.matcher.config.working_focal_px
+        return [f for f in self.config.pyramid_focals_px if f < finest]
+
     def calibrate(
         self,
         seq: Sequence | FrameList[Frame],
@@ -170,16 +192,30 @@ class Calibrator:
                 coarse += [{"stage": "contour", "from": origin, **level} for level in climb.levels]
                 refined[f"{origin}, contour"] = climb.T_cam_lidar
             coarse_starts = refined
+        rng = np.random.default_rng(seed)
+        held = None if timing is None else replace(timing, estimate=False, restarts_s=())
+        T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
+        for focal in self._pyramid_focals():  # the edge matcher coarse to fine, δt held
+            edge = self.matcher.config.model_copy(update={"working_focal_px": focal})
+            level_config = self.config.model_copy(update={"edge": edge})
+            level = refine_passes(
+                frames, T_start, EdgeMatcher(edge), self.support, level_config, rng, alternatives, held
+            )
+            if probed is None and alternatives:  # the starts were chosen at the first level
+                probed = level
+            T_start, alternatives = level.T_cam_lidar, []
+            coarse.append(_pyramid_entry(focal, level.passes))
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
             frames,
-            T_init,
+            T_start,
             self.matcher,
             self.support,
             self.config,
-            np.random.default_rng(seed),
-            alternatives=list(coarse_starts.values()),
+            rng,
+            alternatives=alternatives,
             timing=timing,
         )
+        probed = probed if probed is not None else passes
         if timing is not None and not timing_note:
             timing_note = (
                 f"estimated from the motion of {len(frames)} frames"
@@ -200,9 +236,9 @@ class Calibrator:
             coarse.append(
                 {
                     "stage": "choice",
-                    "kept": origins[passes.start],
+                    "kept": origins[probed.start],
                     "alignment_after_first_pass_px": dict(
-                        zip(origins, passes.probe_alignments_px, strict=True)
+                        zip(origins, probed.probe_alignments_px, strict=True)
                     ),
                 }
             )

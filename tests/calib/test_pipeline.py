@@ -47,6 +47,30 @@ def test_calibrator_undoes_a_known_perturbation(frames):
     assert stored["error"]["translation_cm"] == pytest.approx(result.error.translation_cm)
 
 
+def test_matcher_pyramid_reaches_where_the_finest_level_cannot(frames):
+    """From 10 cm / 4° (25 px at the small camera, twice the EdgeMatcher's reach) the dense passes
+    alone stay off; run first at working focal lengths of 90 and 180 px they converge. A level at
+    or above the matcher's own working focal length (360 px) is skipped."""
+    T_ref = frames[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 10.0, 4.0, torch.Generator().manual_seed(0))
+    errors, levels = {}, {}
+    for pyramid in ((), (90.0, 180.0, 1000.0)):
+        config = FAST.model_copy(
+            update={
+                "pyramid_focals_px": pyramid,
+                "coarse": FAST.coarse.model_copy(update={"enabled": False}),
+                "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
+            }
+        )
+        result = Calibrator(config=config).calibrate(frames, T_init)
+        errors[pyramid], levels[pyramid] = result.error, [c for c in result.coarse if c["stage"] == "pyramid"]
+    assert errors[()].rotation_deg > 1.0  # outside the finest level's reach
+    with_pyramid = errors[(90.0, 180.0, 1000.0)]
+    assert with_pyramid.translation_cm < 1.5 and with_pyramid.rotation_deg < 0.15
+    assert [c["working_focal_px"] for c in levels[(90.0, 180.0, 1000.0)]] == [90.0, 180.0]
+    assert all(c["passes"] >= 1 for c in levels[(90.0, 180.0, 1000.0)]) and levels[()] == []
+
+
 def test_a_map_support_source_is_used_and_checked(frames):
     assert isinstance(UniformSupport(), SupportSource)
     wrong = MapSupport("offline:x", np.ones((3, 3), np.float32))
