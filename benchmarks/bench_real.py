@@ -14,12 +14,12 @@ LiDAR (``camera_offset_s = 0``) and once with the world's default offset (5 ms u
 
 Each run draws a start ``T_ref · Δ`` with ``Δ`` of random axis and direction and its size uniform in
 the ball of the level (``--shell``: exactly the level's size), from a generator seeded by the crc32
-of dataset / level / run, so both variants start from the same draws. Variants: ``dense`` (the
-packaged ``calibrate.yaml`` with the global coarse stage off: the dense passes alone) and ``global``
-(the packaged ``calibrate.yaml``: the global coarse stage with each of its edge maps, then the
-dense passes, which go on from the start, initial or coarse, that their first pass aligns best,
-a coarse one only when clearly so), ``global-pyramid`` (the same with the dense passes run first at
-working focal lengths of 90 and 180 px) and the ``contour`` ones. A run
+of dataset / level / run, so all variants start from the same draws. Variants, each the packaged
+``calibrate.yaml`` with its stages switched as named: ``dense`` (the dense passes alone),
+``global`` (the global coarse stage with each of its edge maps, then the dense passes, which go on
+from the start, initial or coarse, that their first pass aligns best, a coarse one only when
+clearly so), ``global-pyramid`` (the same with the dense passes run first at working focal lengths
+of 90 and 180 px: the packaged config) and the ``contour`` ones. A run
 succeeds when it ends within 2 cm and 0.2° of the reference (several frames) or 5 cm and 0.5°
 (one frame); a run whose pipeline raises counts as a failure
 and its message is kept. Prints a table, one progress line per run to stderr, and writes

@@ -69,7 +69,11 @@ def test_the_calibrator_records_both_coarse_stages(urban):
     T_ref = urban[0].calibration.T_cam_lidar
     T_init = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(4))
     config = CalibrateConfig(
-        frames=3, passes=1, coarse={"enabled": False}, contour={"enabled": True, "sigmas_deg": (1.0, 0.5)}
+        frames=3,
+        passes=1,
+        coarse={"enabled": False},
+        contour={"enabled": True, "sigmas_deg": (1.0, 0.5)},
+        pyramid_focals_px=(),  # the starts are chosen at the finest level (the pyramid: test_pipeline)
     )
     result = Calibrator(config=config).calibrate(urban, T_init)
     assert [level["stage"] for level in result.coarse] == ["contour", "contour", "choice"]
@@ -83,7 +87,7 @@ def test_the_calibrator_records_both_coarse_stages(urban):
 def test_the_calibrator_searches_with_each_edge_map(urban):
     T_ref = urban[0].calibration.T_cam_lidar
     T_init = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(4))
-    config = CalibrateConfig(frames=3, passes=1, coarse={"sigmas_px": (16.0, 8.0)})
+    config = CalibrateConfig(frames=3, passes=1, coarse={"sigmas_px": (16.0, 8.0)}, pyramid_focals_px=())
     result = Calibrator(config=config).calibrate(urban, T_init)
     stages = [(level["stage"], level.get("score")) for level in result.coarse]
     assert stages == [("global", "magnitude")] * 2 + [("global", "orientation")] * 2 + [("choice", None)]
