@@ -256,8 +256,10 @@ def bench_dataset(
                 per_variant[variant].append(run)
                 progress["done"] += 1
                 console.print(progress_line(dataset.name, level, variant, run, progress))
+        day = time.strftime("%Y-%m-%d")  # rows of several runs are merged (--merge): each keeps its day
         row["levels"][level] = {
-            v: {"summary": summarise(r, dataset.count), "runs": r} for v, r in per_variant.items()
+            v: {"summary": summarise(r, dataset.count), "runs": r, "measured": day}
+            for v, r in per_variant.items()
         }
     return row
 

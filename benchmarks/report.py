@@ -220,7 +220,8 @@ def real_data() -> list[str]:
         "experimental contour refinement switched on). "
         f"Success: within {multi[0]:g} cm and {multi[1]:g}° of the reference for several frames, "
         f"{single[0]:g} cm and {single[1]:g}° for one; a run that raises fails. Final errors: median "
-        "/ 90th percentile of the runs that returned; seconds: median per calibration.",
+        "/ 90th percentile of the runs that returned; seconds: median per calibration; measured: the day "
+        "of the run that wrote the row (runs are merged; – : before rows kept their day).",
     ]
     for part, title in (("real", "Real fixtures"), ("synthetic", "Synthetic, full resolution, unseen seeds")):
         rows = []
@@ -241,13 +242,14 @@ def real_data() -> list[str]:
                             f"{opt(s['deg_median'], '.3f')} / {opt(s['deg_p90'], '.3f')}",
                             str(s["raised"]),
                             opt(s["seconds_median"], ".1f"),
+                            entry.get("measured", "–"),
                         ]
                     )
         if rows:
             lines += ["", f"{title}:", ""]
             lines += _table(
                 ["dataset", "frames", "start", "variant", "runs", "success", "translation cm median / p90",
-                 "rotation ° median / p90", "raised", "s"],
+                 "rotation ° median / p90", "raised", "s", "measured"],
                 rows,
             )  # fmt: skip
     for name, note in result.get("notes", {}).items():
