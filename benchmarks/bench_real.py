@@ -19,7 +19,7 @@ of dataset / level / run, so all variants start from the same draws. Variants, e
 ``global`` (the global coarse stage with each of its edge maps, then the dense passes, which go on
 from the start, initial or coarse, that their first pass aligns best, a coarse one only when
 clearly so), ``global-pyramid`` (the same with the dense passes run first at working focal lengths
-of 90 and 180 px: the packaged config) and the ``contour`` ones. A run
+of 90 and 180 px) and the ``contour`` ones. A run
 succeeds when it ends within 2 cm and 0.2° of the reference (several frames) or 5 cm and 0.5°
 (one frame); a run whose pipeline raises counts as a failure
 and its message is kept. Prints a table, one progress line per run to stderr, and writes

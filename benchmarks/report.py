@@ -216,7 +216,7 @@ def real_data() -> list[str]:
         "edge matcher; global+dense: the global coarse stage, searching with two edge maps, then the "
         "dense passes, which go on from the start, initial or coarse, that their first pass aligns "
         "best; dense: the global coarse stage off; pyramid: the dense passes run first at working "
-        "focal lengths of 90 and 180 px (global+pyramid+dense is the packaged config); contour: the "
+        "focal lengths of 90 and 180 px; global+dense is the packaged config); contour: the "
         "experimental contour refinement switched on). "
         f"Success: within {multi[0]:g} cm and {multi[1]:g}° of the reference for several frames, "
         f"{single[0]:g} cm and {single[1]:g}° for one; a run that raises fails. Final errors: median "

@@ -168,13 +168,13 @@ class CalibrateConfig(BaseModel):
         "(a PJLab frame from 2°: an answer 42° off matched by 23 points at 9.4 px beat 211 at 42 px)",
     )
     pyramid_focals_px: tuple[PositiveFloat, ...] = Field(
-        (90.0, 180.0),
-        description="the edge matcher's passes run first at these coarser working focal lengths (px, "
-        "coarse to fine; those at or above `edge.working_focal_px` are skipped), each going on from "
-        "the last, the starts chosen at the first: its windows and search range, in working pixels, "
-        "span 4x the angles at 90 px (bench_real from 10°/50 cm: synthetic urban 3 -> 5 of 10 runs "
-        "within 2 cm / 0.2°, vineyard 0 -> 3; KITTI's six frames from 2°: 3 -> 6 of 10 within 5 cm / "
-        "0.5°, from 10°: 3 -> 4, but 2 more of 10 ending 30-40 cm off)",
+        (),
+        description="run the edge matcher's passes first at these coarser working focal lengths (px, "
+        "coarse to fine, e.g. (90, 180); those at or above `edge.working_focal_px` are skipped), each "
+        "going on from the last, the starts chosen at the first: its windows and search range, in "
+        "working pixels, span 4x the angles at 90 px. Off by default: each level matches every frame "
+        "as often as the finest one (the projection costs the same), which made `make demo` over 3x "
+        "slower; the gains it measured are in the README",
     )
     check_below_px: float = Field(
         3.0,
