@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat
 from scipy import ndimage
 
 from calib.data.types import Frame
-from calib.features import ring_spacing_deg
+from calib.features import level_laser_gains, ring_spacing_deg
 from calib.match.correspondences import Correspondences, working_view
 from calib.projection import ProjectedScan, Visibility, project_scan
 
@@ -55,6 +55,11 @@ class EdgeMatcherConfig(BaseModel):
     )
     intensity_edge_px: float = Field(0.08, gt=0, description="|∇ intensity| per pixel of a full edge")
     intensity_weight: float = Field(0.5, ge=0, description="intensity edges relative to depth edges")
+    level_laser_gains: bool = Field(
+        True,
+        description="level each laser's intensity gain to its neighbours' before drawing intensity "
+        "edges (:func:`calib.features.level_laser_gains`; scans stored line by line only)",
+    )
     image_blur_px: float = Field(0.7, ge=0, description="Gaussian σ before the image gradient")
     highpass_px: float = Field(3.0, gt=0, description="σ of the local mean removed from both fields")
     levels: int = Field(3, ge=1, le=5, description="pyramid levels, each half the previous size")
@@ -247,7 +252,8 @@ def lidar_field(
     """
     T_centre = np.array(T_cam_lidar, np.float64)
     T_centre[:3, 3] = 0.0
-    scan = project_scan(points_lidar, T_centre, K, image_size, None)
+    levelled = level_laser_gains(points_lidar) if config.level_laser_gains else points_lidar
+    scan = project_scan(levelled, T_centre, K, image_size, None)
     field, inverse_depth = lidar_edges(scan, points_lidar, T_centre, K, config)
     rows, cols = np.nonzero(np.abs(field).sum(0) > 0)
     # the nearer side of an edge: the largest inverse depth around it (0 in open sky: no parallax)

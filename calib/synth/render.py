@@ -97,6 +97,8 @@ class Lidar:
     def __init__(self, config: LidarConfig, period_s: float, seed: int = 0):
         self.config, self.period_s, self.seed = config, period_s, seed
         self.directions, self.ring, azimuth = lidar_rays(config)
+        # each laser's intensity gain, a property of the rig (the same in every scan)
+        self.gain = np.exp(np.random.default_rng(seed).normal(0.0, config.laser_gain_std, config.beams))
         self.azimuth_steps = len(self.directions) // config.beams
         # The sweep turns from +π to -π and passes forward (azimuth 0) at the scan's stamp
         self.times = -azimuth / (2 * np.pi) * period_s
@@ -119,7 +121,8 @@ class Lidar:
             hits.material[valid], points, hits.normal[valid], hits.instance[valid], self.seed, color=False
         )
         incidence = -np.einsum("ij,ij->i", hits.normal[valid], directions[valid])
-        intensity = np.clip(reflectance * incidence + rng.normal(0, 0.01, valid.sum()), 0, 1)
+        gain = self.gain[self.ring[valid]]
+        intensity = np.clip(reflectance * incidence * gain + rng.normal(0, 0.01, valid.sum()), 0, 1)
         # Weak returns (dark, grazing or far) are lost: keep-probability rises with the signal
         signal = intensity * np.minimum(1.0, (25.0 / r[valid]) ** 2)
         keep = rng.uniform(0, 1, len(signal)) < np.clip((signal - 0.004) / 0.02, 0, 1)

@@ -40,6 +40,14 @@ class LidarConfig(BaseModel):
     azimuth_step_deg: float = Field(0.2, ge=0.01, le=10)
     range_noise_m: float = Field(0.01, ge=0)
     max_range_m: float = Field(120.0, gt=0)
+    laser_gain_std: float = Field(
+        0.12,
+        ge=0,
+        le=1,
+        description="std of each laser's log intensity gain, fixed per rig: real scanners' lasers "
+        "answer one surface differently (KITTI's HDL-64: 0.14), which draws intensity edges "
+        "along the scan lines",
+    )
 
     @model_validator(mode="after")
     def _elevations_ordered(self) -> LidarConfig:

@@ -1,7 +1,13 @@
 import numpy as np
 import pytest
 
-from calib.features import depth_discontinuities, horizontal_gradient, ring_spacing_deg
+from calib.features import (
+    depth_discontinuities,
+    horizontal_gradient,
+    level_laser_gains,
+    ring_spacing_deg,
+    scan_lines,
+)
 
 
 def _ring(elevation_deg: float, ranges: np.ndarray, azimuth_deg: np.ndarray) -> np.ndarray:
@@ -72,3 +78,64 @@ def test_ring_spacing_known_answers():
     assert ring_spacing_deg(_rings(0.4, 64)) == pytest.approx(0.4, abs=0.01)  # KITTI's HDL-64
     assert ring_spacing_deg(_rings(1.33, 32)) == pytest.approx(1.33, abs=0.01)  # nuScenes' HDL-32
     assert ring_spacing_deg(_rings(1.0, 1)) == 0.0
+
+
+def _striped_scan(gains: np.ndarray, azimuth_step_deg: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """A scan stored ring by ring (rings 0.4° apart, top first, azimuth from -180°): a room whose
+    range and reflectance vary smoothly, each ring's intensity scaled by its laser's gain.
+    Returns the points and the reflectance before the gains."""
+    count = len(gains)
+    elevation, azimuth = np.meshgrid(
+        np.radians(2.0 - 0.4 * np.arange(count)),
+        np.radians(np.arange(-180, 180, azimuth_step_deg)),
+        indexing="ij",
+    )
+    ranges = 12 + 4 * np.cos(2 * azimuth)
+    reflectance = 0.3 + 0.1 * np.sin(3 * azimuth) + 0.05 * np.cos(7 * azimuth) * np.sin(elevation * 20)
+    points = np.column_stack(
+        [
+            (ranges * np.cos(elevation) * np.cos(azimuth)).ravel(),
+            (ranges * np.cos(elevation) * np.sin(azimuth)).ravel(),
+            (ranges * np.sin(elevation)).ravel(),
+            (reflectance * gains[:, None]).ravel(),
+        ]
+    )
+    return points, reflectance.ravel()
+
+
+def test_scan_lines_known_answer():
+    points, _ = _striped_scan(np.ones(32))
+    expected = np.repeat(np.arange(32), len(points) // 32)
+    np.testing.assert_array_equal(scan_lines(points), expected)
+    front = np.abs(np.degrees(np.arctan2(points[:, 1], points[:, 0]))) < 45  # cropped to a camera's view
+    np.testing.assert_array_equal(scan_lines(points[front]), expected[front])
+    # a gap of missing returns (open sky) jumps forward and does not start a line
+    gap = (np.degrees(np.arctan2(points[:, 1], points[:, 0])) % 60) > 20
+    np.testing.assert_array_equal(scan_lines(points[gap]), expected[gap])
+
+
+def test_scan_lines_refuses_other_orders():
+    points, _ = _striped_scan(np.ones(32))
+    assert scan_lines(points[np.random.default_rng(0).permutation(len(points))]) is None
+    assert scan_lines(points[: 4 * len(points) // 32]) is None  # fewer than 8 lines
+    by_azimuth = np.lexsort((np.arange(len(points)) // 1800, np.tile(np.arange(1800), 32)))
+    assert scan_lines(points[by_azimuth]) is None  # stored per firing, as some drivers do
+
+
+def test_level_laser_gains_recovers_the_reflectance():
+    gains = np.exp(np.random.default_rng(1).normal(0.0, 0.15, 32))
+    points, reflectance = _striped_scan(gains)
+    levelled = level_laser_gains(points)
+    ratio = levelled[:, 3] / reflectance
+    # one gain is left for the scan, and a trend over the lasers (taken for the incidence angle)
+    k = np.arange(len(points)) // (len(points) // 32)
+    trend = np.polyval(np.polyfit(np.arange(32), np.log(gains), 1), k)
+    assert np.std(np.log(ratio) - trend) < 0.005
+    np.testing.assert_array_equal(levelled[:, :3], points[:, :3].astype(np.float32))
+
+
+def test_level_laser_gains_keeps_scans_it_cannot_split():
+    points, _ = _striped_scan(np.exp(np.random.default_rng(2).normal(0.0, 0.15, 32)))
+    shuffled = points[np.random.default_rng(0).permutation(len(points))]
+    np.testing.assert_array_equal(level_laser_gains(shuffled), shuffled.astype(np.float32))
+    np.testing.assert_array_equal(level_laser_gains(points[:, :3]), points[:, :3].astype(np.float32))
