@@ -10,7 +10,7 @@ import numpy as np
 from calib.synth.camera_effects import compress, expose
 from calib.synth.materials import sky, surface, to_srgb
 from calib.synth.raycast import Raycaster
-from calib.synth.sensors import CameraConfig, LidarConfig, camera_rays, lidar_rays
+from calib.synth.sensors import CameraConfig, LidarConfig, beam_directions, camera_rays, lidar_rays
 from calib.synth.synth_config import CameraEffectsConfig, LightConfig
 
 __all__ = ["Camera", "Lidar", "LidarScan", "sun_direction"]
@@ -97,8 +97,14 @@ class Lidar:
     def __init__(self, config: LidarConfig, period_s: float, seed: int = 0):
         self.config, self.period_s, self.seed = config, period_s, seed
         self.directions, self.ring, azimuth = lidar_rays(config)
-        # each laser's intensity gain, a property of the rig (the same in every scan)
-        self.gain = np.exp(np.random.default_rng(seed).normal(0.0, config.laser_gain_std, config.beams))
+        rig = np.random.default_rng(seed)  # the rig's own errors, the same in every scan
+        self.gain = np.exp(rig.normal(0.0, config.laser_gain_std, config.beams))  # each laser's intensity
+        # each laser's elevation and azimuth error, zero-mean so the extrinsic stays the truth: the
+        # beams are cast along the true directions, the points reported along the nominal ones
+        error = np.radians(rig.normal(0.0, config.laser_angle_std_deg, (2, config.beams)))
+        error -= error.mean(axis=1, keepdims=True)
+        elevation = np.arcsin(np.clip(self.directions[:, 2], -1, 1)) + error[0, self.ring]
+        self.cast_directions = beam_directions(elevation, azimuth + error[1, self.ring])
         self.azimuth_steps = len(self.directions) // config.beams
         # The sweep turns from +π to -π and passes forward (azimuth 0) at the scan's stamp
         self.times = -azimuth / (2 * np.pi) * period_s
@@ -111,7 +117,7 @@ class Lidar:
         """
         T = T_world_lidar if T_world_lidar.ndim == 3 else T_world_lidar[None]
         column = np.tile(np.arange(self.azimuth_steps), self.config.beams) % len(T)
-        directions = np.einsum("nij,nj->ni", T[column, :3, :3], self.directions)
+        directions = np.einsum("nij,nj->ni", T[column, :3, :3], self.cast_directions)
         origins = T[column, :3, 3]
         hits = caster.cast(origins, directions)
         r = hits.t + rng.normal(0.0, self.config.range_noise_m, len(directions))

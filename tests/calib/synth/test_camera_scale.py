@@ -29,7 +29,13 @@ def test_small_gives_the_old_camera_without_effects_and_leaves_the_rest(world):
     assert small.camera_effects == CameraEffectsConfig() != full.camera_effects
     assert not small.timing.motion_distortion
     assert full.timing.motion_distortion == (world == "urban")  # KITTI's scans are not de-skewed
-    exclude = {"camera": True, "camera_effects": True, "timing": {"motion_distortion"}}
+    assert small.lidar.laser_angle_std_deg == 0.0 < full.lidar.laser_angle_std_deg
+    exclude = {
+        "camera": True,
+        "camera_effects": True,
+        "timing": {"motion_distortion"},
+        "lidar": {"laser_angle_std_deg"},
+    }
     assert small.model_dump(exclude=exclude) == full.model_dump(exclude=exclude)
     blurred = load_synth_config(world, small=True, camera_effects={"blur_px": 0.5})
     assert blurred.camera_effects.blur_px == 0.5

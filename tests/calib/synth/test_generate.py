@@ -14,6 +14,8 @@ from calib.errors import DataError
 from calib.features import level_laser_gains, scan_lines
 from calib.geometry import calibration_error, perturb
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, reference_extrinsic, write_sequence
+from calib.synth.render import Lidar
+from calib.synth.sensors import LidarConfig
 from calib.synth.synth_config import ExtrinsicConfig, load_synth_config
 
 SMALL = {
@@ -79,6 +81,20 @@ def test_each_laser_has_its_own_intensity_gain_and_levelling_finds_it(world):
     implied, true = implied_gains(0.0)
     np.testing.assert_array_equal(true, 0.0)
     assert np.std(implied) < 0.05
+
+
+def test_laser_angle_errors_belong_to_the_rig_and_leave_the_extrinsic_true():
+    """Each laser is cast off its nominal beam by a fixed elevation and azimuth error (the
+    points are reported along the nominal beams); zero-mean over the lasers, the same each scan."""
+    config = LidarConfig(beams=32, azimuth_step_deg=0.4, laser_angle_std_deg=0.2)
+    lidar, again = Lidar(config, 0.1, seed=3), Lidar(config, 0.1, seed=3)
+    np.testing.assert_array_equal(lidar.cast_directions, again.cast_directions)
+    elevation = np.degrees(np.arcsin(lidar.cast_directions[:, 2]) - np.arcsin(lidar.directions[:, 2]))
+    per_laser = elevation.reshape(32, -1)
+    np.testing.assert_allclose(per_laser, np.repeat(per_laser[:, :1], per_laser.shape[1], 1), atol=1e-6)
+    assert abs(per_laser[:, 0].mean()) < 1e-6 and 0.1 < per_laser[:, 0].std() < 0.3
+    ideal = Lidar(LidarConfig(beams=32, azimuth_step_deg=0.4, laser_angle_std_deg=0.0), 0.1, seed=3)
+    np.testing.assert_allclose(ideal.cast_directions, ideal.directions, atol=1e-12)
 
 
 def test_wind_and_time_offset_lower_foliage_agreement():
