@@ -195,15 +195,22 @@ class Calibrator:
         rng = np.random.default_rng(seed)
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
         T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
-        for focal in self._pyramid_focals():  # the edge matcher coarse to fine, δt held
+        pyramid = self._pyramid_focals()
+        if pyramid and alternatives:
+            # the start is chosen by one pass at the finest level, where a wrong start ends its
+            # pass worse aligned than the right one; at 90 px it often ends as well aligned
+            one_pass = self.config.model_copy(update={"passes": 1})
+            probed = refine_passes(
+                frames, T_start, self.matcher, self.support, one_pass, rng, alternatives, held
+            )
+            T_start, alternatives = probed.T_cam_lidar, []
+        for focal in pyramid:  # the edge matcher coarse to fine, δt held
             edge = self.matcher.config.model_copy(update={"working_focal_px": focal})
             level_config = self.config.model_copy(update={"edge": edge})
             level = refine_passes(
-                frames, T_start, EdgeMatcher(edge), self.support, level_config, rng, alternatives, held
+                frames, T_start, EdgeMatcher(edge), self.support, level_config, rng, timing=held
             )
-            if probed is None and alternatives:  # the starts were chosen at the first level
-                probed = level
-            T_start, alternatives = level.T_cam_lidar, []
+            T_start = level.T_cam_lidar
             coarse.append(_pyramid_entry(focal, level.passes))
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
             frames,

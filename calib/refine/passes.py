@@ -171,10 +171,10 @@ class CalibrateConfig(BaseModel):
         (),
         description="run the edge matcher's passes first at these coarser working focal lengths (px, "
         "coarse to fine, e.g. (90, 180); those at or above `edge.working_focal_px` are skipped), each "
-        "going on from the last, the starts chosen at the first: its windows and search range, in "
-        "working pixels, span 4x the angles at 90 px. Off by default: each level matches every frame "
-        "as often as the finest one (the projection costs the same), which made `make demo` over 3x "
-        "slower; the gains it measured are in the README",
+        "going on from the last, after the start (initial or coarse) is chosen by one pass at the "
+        "finest level: its windows and search range, in working pixels, span 4x the angles at 90 px. "
+        "Off by default: each level matches every frame as often as the finest one (the projection "
+        "costs the same), which made `make demo` over 3x slower; the gains it measured are in the README",
     )
     check_below_px: float = Field(
         3.0,

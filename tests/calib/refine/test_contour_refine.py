@@ -96,6 +96,22 @@ def test_the_calibrator_searches_with_each_edge_map(urban):
     assert result.coarse[-1]["kept"] in after
 
 
+def test_with_the_pyramid_the_start_is_still_chosen_at_the_finest_level(urban):
+    """At 90 px a wrong start can end its first pass as well aligned as the right one (KITTI from
+    10°), so the starts are probed at the finest level before the pyramid: the choice, its
+    alignments included, is the one made without the pyramid."""
+    T_init = perturb(urban[0].calibration.T_cam_lidar, 5.0, 2.0, torch.Generator().manual_seed(4))
+    choices = {}
+    for pyramid in ((), (90.0, 180.0)):
+        coarse = {"sigmas_px": (16.0, 8.0)}
+        config = CalibrateConfig(frames=3, passes=1, coarse=coarse, pyramid_focals_px=pyramid)
+        result = Calibrator(config=config).calibrate(urban, T_init)
+        stages = [level["stage"] for level in result.coarse]
+        assert stages == ["global"] * 4 + ["pyramid"] * len(pyramid) + ["choice"]
+        choices[pyramid] = result.coarse[-1]
+    assert choices[(90.0, 180.0)] == choices[()]
+
+
 @pytest.fixture(scope="module")
 def kitti_raw(realdata) -> tuple[list[Frame], np.ndarray]:
     """The six real KITTI raw 2011_09_28 frames (grey camera 0) and their reference."""
