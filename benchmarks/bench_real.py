@@ -32,6 +32,7 @@ and its message is kept. Prints a table, one progress line per run to stderr, an
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import platform
 import tempfile
@@ -370,6 +371,16 @@ def main() -> None:
         "notes": notes,
     }
     clock = time.perf_counter()
+    earlier_path = RESULTS / "bench_real.json"
+    earlier = json.loads(earlier_path.read_text()) if args.merge and earlier_path.is_file() else None
+
+    def save() -> Path:
+        """Write what has run so far (merged over the earlier file with --merge): a long run cut
+        short keeps the datasets it finished."""
+        results["seconds"] = time.perf_counter() - clock
+        done = copy.deepcopy(results)
+        return save_results("bench_real", done if earlier is None else merged(copy.deepcopy(earlier), done))
+
     with tempfile.TemporaryDirectory() as work:
         sources = []
         if args.only != "synthetic":
@@ -388,12 +399,10 @@ def main() -> None:
             row = bench_dataset(dataset, levels, configs, args.runs, args.shell, progress)
             results[part][dataset.name] = row
             print("\n".join(table_lines(dataset.name, row)), flush=True)
+            save()
     for name, note in notes.items():
         print(f"{name}: {note}")
-    results["seconds"] = time.perf_counter() - clock
-    if args.merge and (earlier := RESULTS / "bench_real.json").is_file():
-        results = merged(json.loads(earlier.read_text()), results)
-    print(f"wrote {save_results('bench_real', results)} in {time.perf_counter() - clock:.0f} s")
+    print(f"wrote {save()} in {time.perf_counter() - clock:.0f} s")
 
 
 if __name__ == "__main__":
