@@ -41,9 +41,18 @@ def speed() -> list[str]:
         for world, r in synth["odometry"].items():
             rows.append([f"KISS-ICP, {world}", f"{1 / r['seconds_per_scan']:.1f} frames/s"])
     if matcher := _load("matcher"):
+        real = matcher.pop("kitti-raw-full-resolution", None)
         for world, r in matcher.items():
             rows.append([f"EdgeMatcher, {world}", f"{r['matcher_ms_median']:.0f} ms/frame"])
             rows.append([f"map accumulation, {world}", f"{r['maps_frames_per_s']:.0f} frames/s"])
+        for focal, r in (real or {}).items():
+            if isinstance(r, dict):
+                rows.append(
+                    [
+                        f"EdgeMatcher, real KITTI {real['size']}, working focal {focal} px",
+                        f"{r['first_ms']:.0f} ms first match of a frame, {r['again_ms']:.0f} ms after",
+                    ]
+                )
     if predictor := _load("predictor"):
         ort, eager = predictor["backends"]["onnxruntime"], predictor["backends"]["torch eager"]
         for size in ort:

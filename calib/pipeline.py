@@ -208,7 +208,7 @@ class Calibrator:
             edge = self.matcher.config.model_copy(update={"working_focal_px": focal})
             level_config = self.config.model_copy(update={"edge": edge})
             level = refine_passes(
-                frames, T_start, EdgeMatcher(edge), self.support, level_config, rng, timing=held
+                frames, T_start, self.matcher.with_config(edge), self.support, level_config, rng, timing=held
             )
             T_start = level.T_cam_lidar
             coarse.append(_pyramid_entry(focal, level.passes))

@@ -12,6 +12,10 @@ image to the RGB image. Each visible point reads the flow at its pixel.
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 import torch
@@ -21,10 +25,10 @@ from scipy import ndimage
 
 from calib.data.types import Frame
 from calib.features import level_laser_gains, ring_spacing_deg
-from calib.match.correspondences import Correspondences, working_view
+from calib.match.correspondences import Correspondences, WorkingView, working_view
 from calib.projection import ProjectedScan, Visibility, project_scan
 
-__all__ = ["EdgeMatcher", "EdgeMatcherConfig", "image_edges", "lidar_edges", "lidar_field"]
+__all__ = ["EdgeMatcher", "EdgeMatcherConfig", "ScanFeatures", "image_edges", "lidar_edges", "lidar_field"]
 
 
 class EdgeMatcherConfig(BaseModel):
@@ -149,12 +153,35 @@ def _lidar_sees(
     return (ray_elevation < top - margin_deg) & (ray_elevation > bottom + margin_deg)
 
 
+@dataclass(frozen=True)
+class ScanFeatures:
+    """What the LiDAR field takes from a scan beyond its geometry, the same wherever the scan is
+    moved (deskewed, or to another time offset), so a matcher computes it once per scan.
+
+    Attributes:
+        intensity: ``(N,)`` float32 with each laser's gain levelled
+            (:func:`~calib.features.level_laser_gains`; as measured without levelling).
+        ring_spacing_deg: :func:`~calib.features.ring_spacing_deg` of the scan.
+    """
+
+    intensity: np.ndarray
+    ring_spacing_deg: float
+
+    @classmethod
+    def of(cls, points_lidar: np.ndarray, level_gains: bool = True) -> ScanFeatures:
+        """The features of ``points_lidar (N, 3+)`` (no intensity column: zeros)."""
+        points = level_laser_gains(points_lidar) if level_gains else points_lidar
+        intensity = points[:, 3] if points.shape[1] > 3 else np.zeros(len(points))
+        return cls(np.asarray(intensity, np.float32), ring_spacing_deg(points_lidar))
+
+
 def lidar_edges(
     scan: ProjectedScan,
     points_lidar: np.ndarray,
     T_cam_lidar: np.ndarray,
     K: np.ndarray,
     config: EdgeMatcherConfig = EdgeMatcherConfig(),
+    ring_spacing: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Orientation field of a projected scan: depth and intensity edges between returns.
 
@@ -167,6 +194,7 @@ def lidar_edges(
         scan: visible points under ``T_cam_lidar`` (:func:`~calib.projection.project_scan`).
         points_lidar: ``(N, 3+)`` the whole scan (its elevation range bounds the LiDAR's view).
         T_cam_lidar: ``(4, 4)``. K: ``(3, 3)`` of the image the scan was projected into.
+        ring_spacing: the scan's :func:`~calib.features.ring_spacing_deg` where already known.
 
     Returns:
         ``field (2, H, W)`` float32 and ``inverse_depth (H, W)`` float32 of the nearest return
@@ -180,7 +208,8 @@ def lidar_edges(
     rc = np.rint(scan.uv[far_first, ::-1]).astype(int)
     ids[rc[:, 0], rc[:, 1]] = far_first
     dist = ndimage.distance_transform_edt(ids < 0)
-    fill_deg = max(config.fill_radius_deg, ring_spacing_deg(points_lidar))
+    ring_spacing = ring_spacing_deg(points_lidar) if ring_spacing is None else ring_spacing
+    fill_deg = max(config.fill_radius_deg, ring_spacing)
     fill_px = K[0, 0] * np.tan(np.radians(fill_deg))
     sees = _lidar_sees(points_lidar, T_cam_lidar, K, (H, W), fill_deg)
     # open sky seeds a Voronoi cell of its own, so an object's silhouette against the sky falls
@@ -208,18 +237,19 @@ def _splat(values: np.ndarray, uv: np.ndarray, image_size: tuple[int, int]) -> n
     H, W = image_size
     base = np.floor(uv).astype(np.int64)
     frac = (uv - base).astype(np.float32)
-    out = np.zeros((len(values), H * W), np.float32)
-    weight = np.zeros(H * W, np.float32)
+    index, weight, value = [], [], []
     for dv in (0, 1):
         for du in (0, 1):
             w = (frac[:, 0] if du else 1 - frac[:, 0]) * (frac[:, 1] if dv else 1 - frac[:, 1])
             col, row = base[:, 0] + du, base[:, 1] + dv
             inside = (col >= 0) & (col < W) & (row >= 0) & (row < H) & (w > 0)
-            flat = row[inside] * W + col[inside]
-            np.add.at(weight, flat, w[inside])
-            for c in range(len(values)):
-                np.add.at(out[c], flat, w[inside] * values[c, inside])
-    return (out / np.maximum(weight, 1.0)).reshape(len(values), H, W)
+            index.append(row[inside] * W + col[inside])
+            weight.append(w[inside])
+            value.append(values[:, inside])
+    index, weight, value = np.concatenate(index), np.concatenate(weight), np.concatenate(value, axis=1)
+    out = np.stack([np.bincount(index, weight * v, H * W) for v in value])
+    weight = np.bincount(index, weight, H * W)
+    return (out / np.maximum(weight, 1.0)).reshape(len(values), H, W).astype(np.float32)
 
 
 def lidar_field(
@@ -228,6 +258,7 @@ def lidar_field(
     K: np.ndarray,
     image_size: tuple[int, int],
     config: EdgeMatcherConfig = EdgeMatcherConfig(),
+    features: ScanFeatures | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The LiDAR's orientation field as the camera sees it, free of the parallax between the
     two sensors.
@@ -246,15 +277,17 @@ def lidar_field(
     Args:
         points_lidar: ``(N, 3+)`` the scan. T_cam_lidar: ``(4, 4)``. K: ``(3, 3)``.
         image_size: ``(H, W)``.
+        features: the scan's :class:`ScanFeatures` where already known.
 
     Returns:
         ``field (2, H, W)`` float32 and ``inverse_depth (H, W)`` of the nearest return (virtual view).
     """
     T_centre = np.array(T_cam_lidar, np.float64)
     T_centre[:3, 3] = 0.0
-    levelled = level_laser_gains(points_lidar) if config.level_laser_gains else points_lidar
+    features = ScanFeatures.of(points_lidar, config.level_laser_gains) if features is None else features
+    levelled = np.column_stack([points_lidar[:, :3], features.intensity])
     scan = project_scan(levelled, T_centre, K, image_size, None)
-    field, inverse_depth = lidar_edges(scan, points_lidar, T_centre, K, config)
+    field, inverse_depth = lidar_edges(scan, points_lidar, T_centre, K, config, features.ring_spacing_deg)
     rows, cols = np.nonzero(np.abs(field).sum(0) > 0)
     # the nearer side of an edge: the largest inverse depth around it (0 in open sky: no parallax)
     nearer = ndimage.maximum_filter(inverse_depth, size=5)[rows, cols].astype(np.float64)
@@ -266,23 +299,25 @@ def lidar_field(
     return _splat(field[:, rows[ahead], cols[ahead]], uv.T, image_size), inverse_depth
 
 
-def _box_1d(x: torch.Tensor, k: int, dim: int) -> torch.Tensor:
-    """Mean over a centred run of ``k`` samples along ``dim`` (fewer at the borders), by a
-    cumulative sum: the cost does not grow with ``k``."""
-    n, r = x.shape[dim], k // 2
-    pad = [0, 0] * (x.ndim - 1 - dim % x.ndim) + [r + 1, r]
-    c = F.pad(x, pad).cumsum(dim)
-    total = c.narrow(dim, k, n) - c.narrow(dim, 0, n)
-    i = torch.arange(n)
-    count = ((i + r).clamp(max=n - 1) - (i - r).clamp(min=0) + 1).to(x.dtype)
-    view = [1] * x.ndim
-    view[dim] = n
-    return total / count.view(view)
+def _window_counts(n: int, k: int) -> np.ndarray:
+    """``(n,)`` how many of a centred run of ``k`` samples fall inside ``0..n-1`` at each index."""
+    i, r = np.arange(n), k // 2
+    return (np.minimum(i + r, n - 1) - np.maximum(i - r, 0) + 1).astype(np.float32)
 
 
-def _box(x: torch.Tensor, k: int) -> torch.Tensor:
-    """Mean over a ``k x k`` window of ``x (C, H, W)`` (clipped at the borders), same size out."""
-    return _box_1d(_box_1d(x, k, -1), k, -2)
+def _box(x: np.ndarray, k: int) -> np.ndarray:
+    """Mean over a ``k x k`` window of ``x (C, H, W)`` (clipped at the borders), same size out.
+
+    OpenCV's box filter sums over a zero border (a running sum: the cost does not grow with
+    ``k``); dividing by the number of samples inside the image makes it the clipped mean.
+    """
+    _, H, W = x.shape
+    count = np.outer(_window_counts(H, k), _window_counts(W, k))
+    sums = [
+        cv2.boxFilter(np.ascontiguousarray(c), -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        for c in x
+    ]
+    return np.stack(sums) / count
 
 
 def _downsample(x: np.ndarray) -> np.ndarray:
@@ -296,36 +331,50 @@ def _downsample(x: np.ndarray) -> np.ndarray:
     )
 
 
-def _correlate(lidar: torch.Tensor, image: torch.Tensor, radius: int) -> torch.Tensor:
+def _correlate(lidar: np.ndarray, image: np.ndarray, radius: int) -> np.ndarray:
     """``(D, H, W)`` per-pixel ⟨L(y), I(y + d)⟩ for the ``D = (2r+1)²`` displacements ``d``,
     row-major over ``(dv, du)`` from ``(−r, −r)``."""
-    _, H, W = lidar.shape
-    padded = F.pad(image, (radius, radius, radius, radius))
+    C, H, W = lidar.shape
+    padded = np.pad(image, ((0, 0), (radius, radius), (radius, radius)))
     n = 2 * radius + 1
-    return torch.stack(
-        [(lidar * padded[:, dv : dv + H, du : du + W]).sum(0) for dv in range(n) for du in range(n)]
-    )
+    out = np.empty((n * n, H, W), np.float32)
+    for k in range(n * n):
+        shifted = padded[:, k // n : k // n + H, k % n : k % n + W]
+        np.multiply(lidar[0], shifted[0], out=out[k])
+        for c in range(1, C):
+            out[k] += lidar[c] * shifted[c]
+    return out
 
 
-def _normalised_cost(lidar: torch.Tensor, image: torch.Tensor, radius: int, window: int) -> torch.Tensor:
+def _normalised_cost(lidar: np.ndarray, image: np.ndarray, radius: int, window: int) -> np.ndarray:
     """``(D, H, W)`` window-aggregated correlation divided by the RMS of the image field in the
     displaced window. Without the division the peak leans toward displacements whose window
     holds more image edges (Cauchy–Schwarz bounds the correlation by that energy, not by the
     match); with it, a field matched against itself peaks exactly at zero."""
-    energy = _box(image.pow(2).sum(0, keepdim=True), window)
-    rms = _correlate(torch.ones_like(energy), energy, radius).clamp(min=1e-12).sqrt()
+    energy = _box((image**2).sum(0, keepdims=True), window)
+    rms = np.sqrt(np.maximum(_correlate(np.ones_like(energy), energy, radius), 1e-12))
     return _box(_correlate(lidar, image, radius), window) / (rms + 1e-3)
 
 
-def _warp(image: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
-    """``image (C, H, W)`` sampled at ``x + flow(x)``; ``flow (2, H, W)`` as ``(du, dv)``."""
+def _warp(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """``image (C, H, W)`` sampled bilinearly at ``x + flow(x)`` (zero outside); ``flow (2, H, W)``
+    as ``(du, dv)``."""
     _, H, W = image.shape
-    v, u = torch.meshgrid(torch.arange(H, dtype=flow.dtype), torch.arange(W, dtype=flow.dtype), indexing="ij")
-    grid = torch.stack([(u + flow[0]) * 2 / max(W - 1, 1) - 1, (v + flow[1]) * 2 / max(H - 1, 1) - 1], -1)
-    return F.grid_sample(image[None], grid[None], align_corners=True, padding_mode="zeros")[0]
+    v, u = np.mgrid[0:H, 0:W].astype(np.float32)
+    grid = np.stack([(u + flow[0]) * 2 / max(W - 1, 1) - 1, (v + flow[1]) * 2 / max(H - 1, 1) - 1], -1)
+    warped = F.grid_sample(
+        torch.from_numpy(image)[None], torch.from_numpy(grid)[None], align_corners=True, padding_mode="zeros"
+    )
+    return warped[0].numpy()
 
 
-def _peak(cost: torch.Tensor, radius: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def _upsample_flow(flow: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``flow (2, h, w)`` carried to the next finer level of ``size (H, W)`` (twice as long)."""
+    resized = F.interpolate(torch.from_numpy(flow)[None], size=size, mode="bilinear", align_corners=False)
+    return 2 * resized[0].numpy()
+
+
+def _peak(cost: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sub-pixel peak of a cost volume ``(D, H, W)``.
 
     Returns:
@@ -333,24 +382,25 @@ def _peak(cost: torch.Tensor, radius: int) -> tuple[torch.Tensor, torch.Tensor, 
         along u and v ``(H, W)`` (zero where the peak lies on the search border).
     """
     n = 2 * radius + 1
-    peak, best = cost.max(0)
+    best = cost.argmax(0)
+    peak = np.take_along_axis(cost, best[None], 0)[0]
     bv, bu = best // n - radius, best % n - radius
     offsets, curvatures = [], []
     for b, step in ((bu, 1), (bv, n)):
-        inner = b.abs() < radius
-        lo = cost.gather(0, (best - step).clamp(0, n * n - 1)[None])[0]
-        hi = cost.gather(0, (best + step).clamp(0, n * n - 1)[None])[0]
-        curvature = torch.where(inner, 2 * peak - lo - hi, torch.zeros_like(peak))
+        lo, hi = (
+            np.take_along_axis(cost, np.clip(best + s, 0, n * n - 1)[None], 0)[0] for s in (-step, step)
+        )
+        curvature = np.where(np.abs(b) < radius, 2 * peak - lo - hi, 0).astype(np.float32)
         # parabola through (−1, lo), (0, peak), (1, hi): vertex at (hi − lo) / (2 (2 peak − lo − hi))
-        sub = torch.where(curvature > 0, (hi - lo) / (2 * curvature.clamp(min=1e-12)), torch.zeros_like(peak))
-        offsets.append(b + sub.clamp(-0.5, 0.5))
+        sub = np.where(curvature > 0, (hi - lo) / (2 * np.maximum(curvature, 1e-12)), 0)
+        offsets.append(b + np.clip(sub, -0.5, 0.5))
         curvatures.append(curvature)
-    return torch.stack(offsets), peak, curvatures[0], curvatures[1]
+    return np.stack(offsets).astype(np.float32), peak, curvatures[0], curvatures[1]
 
 
 def _depth_model_fit(
-    flow: torch.Tensor, weight: torch.Tensor, inverse_depth: torch.Tensor, window: int, ridge: float = 1e-4
-) -> torch.Tensor:
+    flow: np.ndarray, weight: np.ndarray, inverse_depth: np.ndarray, window: int, ridge: float = 1e-4
+) -> np.ndarray:
     """Per pixel, the weighted least-squares fit of ``f(y) = a + b / z(y)`` to the flow estimates
     in a window around it, evaluated at the pixel.
 
@@ -367,8 +417,10 @@ def _depth_model_fit(
     """
     q = inverse_depth
     w = weight + 1e-6
-    s_w, s_q, s_qq = (_box(x[None], window)[0] for x in (w, w * q, w * q * q))
-    s_f, s_qf = _box(w * flow, window), _box(w * q * flow, window)
+    s_w, s_q, s_qq, s_f0, s_f1, s_qf0, s_qf1 = _box(
+        np.stack([w, w * q, w * q * q, w * flow[0], w * flow[1], w * q * flow[0], w * q * flow[1]]), window
+    )
+    s_f, s_qf = np.stack([s_f0, s_f1]), np.stack([s_qf0, s_qf1])
     # centred normal equations of [1, q]: slope b, then intercept a = mean f − b · mean q
     mean_q, mean_f = s_q / s_w, s_f / s_w
     var_q = s_qq / s_w - mean_q**2
@@ -377,14 +429,14 @@ def _depth_model_fit(
 
 
 def _confidence(
-    peak: torch.Tensor, curv_u: torch.Tensor, curv_v: torch.Tensor, signal: torch.Tensor, scale: float
-) -> torch.Tensor:
+    peak: np.ndarray, curv_u: np.ndarray, curv_v: np.ndarray, signal: np.ndarray, scale: float
+) -> np.ndarray:
     """``(H, W)`` in [0, 1]: the share of the window's LiDAR edge energy the peak aligns with image
     edges, times the peak's sharpness in its flattest direction (zero on a single straight edge,
     where the aperture problem leaves the displacement along the edge undetermined)."""
-    norm = signal.clamp(min=1e-6)
-    quality = (peak / norm).clamp(0, 1)
-    sharpness = torch.minimum(curv_u, curv_v).clamp(min=0) / norm
+    norm = np.maximum(signal, 1e-6)
+    quality = np.clip(peak / norm, 0, 1)
+    sharpness = np.maximum(np.minimum(curv_u, curv_v), 0) / norm
     return quality * sharpness / (sharpness + scale)
 
 
@@ -393,8 +445,50 @@ class EdgeMatcher:
 
     name = "edge"
 
-    def __init__(self, config: EdgeMatcherConfig = EdgeMatcherConfig()):
+    def __init__(self, config: EdgeMatcherConfig = EdgeMatcherConfig(), cache_size: int = 32):
         self.config = config
+        # what stays the same while a refinement matches the same frames again and again: each
+        # scan's features (keyed by its intensities, which moving the points leaves as they are,
+        # its size and where it lies to a metre) and each image's working view and edge field
+        # (keyed by the image object itself), the last `cache_size` of each
+        self._scans: OrderedDict[tuple, ScanFeatures] = OrderedDict()
+        self._images: OrderedDict[tuple, tuple[np.ndarray, WorkingView, np.ndarray]] = OrderedDict()
+        self._cache_size = cache_size
+
+    def _remember(self, cache: OrderedDict, key: tuple, value: object) -> None:
+        cache[key] = value
+        if len(cache) > self._cache_size:
+            cache.popitem(last=False)
+
+    def scan_features(self, points_lidar: np.ndarray) -> ScanFeatures:
+        """:meth:`ScanFeatures.of` the scan ``(N, 3+)``, computed once per scan."""
+        intensity = np.ascontiguousarray(points_lidar[:, 3:])
+        centre = np.rint(points_lidar[:, :3].mean(0)).tolist() if len(points_lidar) else []
+        digest = hashlib.blake2b(intensity.tobytes(), digest_size=16).digest()
+        key = (self.config.level_laser_gains, len(points_lidar), digest, *centre)
+        if key not in self._scans:
+            self._remember(self._scans, key, ScanFeatures.of(points_lidar, self.config.level_laser_gains))
+        self._scans.move_to_end(key)
+        return self._scans[key]
+
+    def with_config(self, config: EdgeMatcherConfig) -> EdgeMatcher:
+        """A matcher with ``config`` (another working focal length, say) that shares this one's
+        scan features."""
+        other = EdgeMatcher(config, self._cache_size)
+        other._scans = self._scans
+        return other
+
+    def image_view(self, frame: Frame) -> tuple[WorkingView, np.ndarray]:
+        """The frame's :func:`~calib.match.correspondences.working_view` and its
+        :func:`image_edges`, computed once per image."""
+        key = (id(frame.image), frame.K.tobytes())
+        hit = self._images.get(key)
+        if hit is None or hit[0] is not frame.image:  # an id is reused only once its image is gone
+            view = working_view(frame, self.config.working_focal_px)
+            hit = (frame.image, view, image_edges(view.image, self.config))
+            self._remember(self._images, key, hit)
+        self._images.move_to_end(key)
+        return hit[1], hit[2]
 
     def dense_flow(
         self, lidar: np.ndarray, image: np.ndarray, inverse_depth: np.ndarray
@@ -415,21 +509,18 @@ class EdgeMatcher:
         lidar, image = (
             np.stack([c - cv2.GaussianBlur(c, (0, 0), cfg.highpass_px) for c in x]) for x in (lidar, image)
         )
-        pyramid = [(lidar, image)]
+        pyramid = [(lidar.astype(np.float32), image.astype(np.float32))]
         for _ in range(cfg.levels - 1):
             pyramid.append(tuple(_downsample(x) for x in pyramid[-1]))
-        pyramid = [(torch.from_numpy(L), torch.from_numpy(I)) for L, I in pyramid]
-        flow = torch.zeros(2, *pyramid[-1][0].shape[1:])
+        flow = np.zeros((2, *pyramid[-1][0].shape[1:]), np.float32)
         for level in reversed(range(cfg.levels)):
             L, I = pyramid[level]
             if flow.shape[1:] != L.shape[1:]:
-                flow = (
-                    2 * F.interpolate(flow[None], size=L.shape[1:], mode="bilinear", align_corners=False)[0]
-                )
+                flow = _upsample_flow(flow, L.shape[1:])
             radius = cfg.search_radius if level == cfg.levels - 1 else cfg.refine_radius
             cost = _normalised_cost(L, _warp(I, flow), radius, cfg.window)
             offset, peak, curv_u, curv_v = _peak(cost, radius)
-            signal = _box(L.norm(dim=0, keepdim=True), cfg.window)[0]
+            signal = _box(np.sqrt((L**2).sum(0, keepdims=True)), cfg.window)[0]
             confidence = _confidence(peak, curv_u, curv_v, signal, cfg.sharpness_scale)
             if level:
                 # one flow per window, averaged with the confidence as weight: a window on a
@@ -439,10 +530,8 @@ class EdgeMatcher:
                 weight = confidence[None] + 1e-6
                 flow = flow + _box(weight * offset, cfg.window) / _box(weight, cfg.window)
             else:
-                flow = _depth_model_fit(
-                    flow + offset, confidence, torch.from_numpy(inverse_depth), cfg.smooth_window
-                )
-        return flow.numpy(), signal.numpy(), confidence.numpy()
+                flow = _depth_model_fit(flow + offset, confidence, inverse_depth, cfg.smooth_window)
+        return flow.astype(np.float32), signal.astype(np.float32), confidence.astype(np.float32)
 
     def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
         """Correspondences of every visible point whose window carries enough LiDAR edge signal
@@ -453,11 +542,12 @@ class EdgeMatcher:
             T_cam_lidar: ``(4, 4)`` the extrinsic to project with.
         """
         cfg = self.config
-        view = working_view(frame, cfg.working_focal_px)
+        view, edges = self.image_view(frame)
         size = view.image.shape[:2]
         scan = project_scan(frame.points, T_cam_lidar, view.K, size, Visibility(window=3))
-        lidar, inverse_depth = lidar_field(frame.points, T_cam_lidar, view.K, size, cfg)
-        flow, signal, confidence = self.dense_flow(lidar, image_edges(view.image, cfg), inverse_depth)
+        features = self.scan_features(frame.points)
+        lidar, inverse_depth = lidar_field(frame.points, T_cam_lidar, view.K, size, cfg, features)
+        flow, signal, confidence = self.dense_flow(lidar, edges, inverse_depth)
         r, c = np.rint(scan.uv[:, 1]).astype(int), np.rint(scan.uv[:, 0]).astype(int)
         keep = (signal[r, c] >= cfg.min_signal) & (confidence[r, c] >= cfg.min_confidence)
         index = scan.index[keep]
