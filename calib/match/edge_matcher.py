@@ -13,8 +13,11 @@ image to the RGB image. Each visible point reads the flow at its pixel.
 from __future__ import annotations
 
 import hashlib
+import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -27,6 +30,8 @@ from calib.data.types import Frame
 from calib.features import level_laser_gains, ring_spacing_deg
 from calib.match.correspondences import Correspondences, WorkingView, working_view
 from calib.projection import ProjectedScan, Visibility, project_scan
+
+Value = TypeVar("Value")
 
 __all__ = ["EdgeMatcher", "EdgeMatcherConfig", "ScanFeatures", "image_edges", "lidar_edges", "lidar_field"]
 
@@ -454,11 +459,20 @@ class EdgeMatcher:
         self._scans: OrderedDict[tuple, ScanFeatures] = OrderedDict()
         self._images: OrderedDict[tuple, tuple[np.ndarray, WorkingView, np.ndarray]] = OrderedDict()
         self._cache_size = cache_size
+        self._lock = threading.Lock()  # frames are matched from several threads (match_frames)
 
-    def _remember(self, cache: OrderedDict, key: tuple, value: object) -> None:
-        cache[key] = value
-        if len(cache) > self._cache_size:
-            cache.popitem(last=False)
+    def _recall(self, cache: OrderedDict, key: tuple, make: Callable[[], Value]) -> Value:
+        """``cache[key]``, made (outside the lock) and remembered when missing."""
+        with self._lock:
+            if key in cache:
+                cache.move_to_end(key)
+                return cache[key]
+        value = make()
+        with self._lock:
+            cache[key] = value
+            if len(cache) > self._cache_size:
+                cache.popitem(last=False)
+        return value
 
     def scan_features(self, points_lidar: np.ndarray) -> ScanFeatures:
         """:meth:`ScanFeatures.of` the scan ``(N, 3+)``, computed once per scan."""
@@ -466,29 +480,29 @@ class EdgeMatcher:
         centre = np.rint(points_lidar[:, :3].mean(0)).tolist() if len(points_lidar) else []
         digest = hashlib.blake2b(intensity.tobytes(), digest_size=16).digest()
         key = (self.config.level_laser_gains, len(points_lidar), digest, *centre)
-        if key not in self._scans:
-            self._remember(self._scans, key, ScanFeatures.of(points_lidar, self.config.level_laser_gains))
-        self._scans.move_to_end(key)
-        return self._scans[key]
+        return self._recall(
+            self._scans, key, lambda: ScanFeatures.of(points_lidar, self.config.level_laser_gains)
+        )
 
     def with_config(self, config: EdgeMatcherConfig) -> EdgeMatcher:
         """A matcher with ``config`` (another working focal length, say) that shares this one's
         scan features."""
         other = EdgeMatcher(config, self._cache_size)
-        other._scans = self._scans
+        other._scans, other._lock = self._scans, self._lock
         return other
 
     def image_view(self, frame: Frame) -> tuple[WorkingView, np.ndarray]:
         """The frame's :func:`~calib.match.correspondences.working_view` and its
         :func:`image_edges`, computed once per image."""
-        key = (id(frame.image), frame.K.tobytes())
-        hit = self._images.get(key)
-        if hit is None or hit[0] is not frame.image:  # an id is reused only once its image is gone
+        image = frame.image
+
+        def make() -> tuple[np.ndarray, WorkingView, np.ndarray]:
             view = working_view(frame, self.config.working_focal_px)
-            hit = (frame.image, view, image_edges(view.image, self.config))
-            self._remember(self._images, key, hit)
-        self._images.move_to_end(key)
-        return hit[1], hit[2]
+            return image, view, image_edges(view.image, self.config)
+
+        # the entry holds the image itself: an id is reused only once its image is gone
+        _, view, edges = self._recall(self._images, (id(image), frame.K.tobytes()), make)
+        return view, edges
 
     def dense_flow(
         self, lidar: np.ndarray, image: np.ndarray, inverse_depth: np.ndarray

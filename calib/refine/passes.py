@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 from calib.data.types import Frame
 from calib.errors import DataError, NumericalError
 from calib.geometry import calibration_error, se3_exp, se3_log
-from calib.match.correspondences import Correspondences, Matcher
+from calib.match.correspondences import Correspondences, Matcher, match_frames
 from calib.match.edge_matcher import EdgeMatcherConfig
 from calib.motion import ScanMotion, sweep_times, twist_spread
 from calib.projection import pixel_lookup
@@ -168,13 +168,14 @@ class CalibrateConfig(BaseModel):
         "(a PJLab frame from 2°: an answer 42° off matched by 23 points at 9.4 px beat 211 at 42 px)",
     )
     pyramid_focals_px: tuple[PositiveFloat, ...] = Field(
-        (),
+        (90.0, 180.0),
         description="run the edge matcher's passes first at these coarser working focal lengths (px, "
-        "coarse to fine, e.g. (90, 180); those at or above `edge.working_focal_px` are skipped), each "
+        "coarse to fine; those at or above `edge.working_focal_px` are skipped; empty: none), each "
         "going on from the last, after the start (initial or coarse) is chosen by one pass at the "
         "finest level: its windows and search range, in working pixels, span 4x the angles at 90 px. "
-        "Off by default: each level matches every frame as often as the finest one (the projection "
-        "costs the same), which made `make demo` over 3x slower; the gains it measured are in the README",
+        "Six real KITTI frames, 20 draws each (README): from 2° / 10 cm 19 of 20 within 5 cm / 0.5° "
+        "(13 without), median 2.50 cm against 4.15; from 10° / 50 cm 19 of 20 (18, one 36 cm off "
+        "without); 16 s per calibration against 11",
     )
     check_below_px: float = Field(
         3.0,
@@ -405,7 +406,7 @@ def refine_passes(
         return timing.frames_at(frames, dt)
 
     def matched_under(T: np.ndarray, dt: float | None) -> tuple[list[Correspondences], float]:
-        matched = [_usable(matcher.match(frame, T), rules) for frame in at(dt)]
+        matched = [_usable(corr, rules) for corr in match_frames(matcher, at(dt), T)]
         return matched, _median_norm(np.concatenate([c.residual for c in matched]))
 
     def fit(points, targets, weights, scans, T: np.ndarray, dt: float | None) -> Refinement:

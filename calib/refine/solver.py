@@ -43,7 +43,11 @@ class RefineConfig(BaseModel):
     loss: Literal["cauchy", "huber", "squared"] = "cauchy"
     loss_scale_px: float = Field(2.0, gt=0, description="residual where the robust loss bends")
     max_iterations: int = Field(50, ge=1)
-    step_tolerance: float = Field(1e-10, gt=0, description="stop when ‖δ‖ (m, rad) falls below this")
+    step_tolerance: float = Field(
+        1e-6,
+        gt=0,
+        description="stop when ‖δ‖ (m, rad; δt in ms) falls below this: a micrometre, a microradian",
+    )
     initial_damping: float = Field(1e-3, gt=0, description="Levenberg–Marquardt λ at the start")
     noise_floor_px: float = Field(
         0.5,

@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -7,7 +9,7 @@ from calib.data import open_dataset
 from calib.data.real_fixtures import AMZ_DRIVE, AMZ_DRIVE_MORE
 from calib.errors import DataError
 from calib.geometry import perturb
-from calib.match.correspondences import Correspondences
+from calib.match.correspondences import Correspondences, match_frames
 from calib.match.edge_matcher import (
     EdgeMatcher,
     EdgeMatcherConfig,
@@ -206,3 +208,30 @@ def test_sparse_rings_do_not_read_as_sky_between_them():
     field, _ = lidar_field(points, T, K, (200, 640))
     inside = np.abs(field[:, 45:160, 130:510]).sum(0)  # within the wall (u 112-528, v 35-196)
     assert inside.max() < 0.05
+
+
+def test_a_matcher_reused_answers_as_a_new_one_and_keeps_a_moved_scans_features(still_vineyard):
+    """The image edges and scan features a matcher keeps are the ones a new matcher computes: the
+    same frames matched again, from several threads, give what a fresh matcher gives. A scan moved
+    by a few centimetres (as a time offset moves it) keeps the features computed where it was
+    first seen; matched so, it differs from a fresh match only where the ring spacing read from
+    the moved points differs (a fraction of a percent of the points)."""
+    T = perturb(still_vineyard[0].calibration.T_cam_lidar, 2.0, 0.5, torch.Generator().manual_seed(1))
+    reused = EdgeMatcher()
+    in_threads = match_frames(reused, still_vineyard, T)
+    for frame, threaded in zip(still_vineyard, in_threads, strict=True):
+        fresh, again = EdgeMatcher().match(frame, T), reused.match(frame, T)
+        for corr in (again, threaded):
+            np.testing.assert_array_equal(fresh.index, corr.index)
+            np.testing.assert_allclose(fresh.uv_matched, corr.uv_matched, atol=1e-4)
+    shift = np.array([0.03, -0.02, 0.01, 0.0], np.float32)
+    moved = replace(still_vineyard[0], points=still_vineyard[0].points + shift)
+    features = reused.scan_features(moved.points)
+    assert features is reused.scan_features(still_vineyard[0].points)
+    assert (
+        reused.with_config(EdgeMatcherConfig(working_focal_px=180.0)).scan_features(moved.points) is features
+    )
+    fresh, again = EdgeMatcher().match(moved, T), reused.match(moved, T)
+    common, i, j = np.intersect1d(fresh.index, again.index, return_indices=True)
+    assert len(common) > 0.99 * max(len(fresh), len(again))
+    assert np.median(np.linalg.norm(fresh.uv_matched[i] - again.uv_matched[j], axis=1)) < 0.01
