@@ -225,9 +225,10 @@ def test_a_matcher_reused_answers_as_a_new_one_and_keeps_a_moved_scans_features(
             np.testing.assert_array_equal(fresh.index, corr.index)
             np.testing.assert_allclose(fresh.uv_matched, corr.uv_matched, atol=1e-4)
     shift = np.array([0.03, -0.02, 0.01, 0.0], np.float32)
-    moved = replace(still_vineyard[0], points=still_vineyard[0].points + shift)
+    frame = still_vineyard[1]  # (an earlier test empties the first frame's scan)
+    moved = replace(frame, points=frame.points + shift)
     features = reused.scan_features(moved.points)
-    assert features is reused.scan_features(still_vineyard[0].points)
+    assert features is reused.scan_features(frame.points)
     assert (
         reused.with_config(EdgeMatcherConfig(working_focal_px=180.0)).scan_features(moved.points) is features
     )
