@@ -5,7 +5,8 @@ around the start is scored and the best few are climbed over all six parameters;
 ``rotation_only_above_px`` (none by default) search rotation alone. Searching rotation alone first
 lets it absorb a translation error it cannot undo later: on synthetic urban frames at KITTI's scale
 from 10° / 50 cm the old default (rotation only at 32 and 16 px) left a median 45 cm, all six from
-16 px down brought 9 of 10 draws within about 20 cm / 2°. Each scale's steps
+16 px down brought 9 of 10 draws within about 20 cm / 2.2° (on the seeds it was chosen on; on an
+unseen urban seed the search alone fails with either, README). Each scale's steps
 scale with ``σ``; a move is taken only when the score rises, so every level can only improve it.
 It runs once per edge map in ``scores`` (:data:`calib.match.edge_alignment.SCORE_KINDS`: which one
 finds the basin depends on the scene); the dense passes then keep the answer they align best.
