@@ -291,6 +291,13 @@ def calibrate(
     ] = None,
     camera: Camera = None,
     overwrite: Overwrite = False,
+    check: Annotated[
+        bool,
+        typer.Option(
+            help="Check the answer without ground truth (as `supportnet check`; result.json's check), "
+            "and say so when it looks wrong.",
+        ),
+    ] = True,
 ) -> None:
     """Stage 4: support-guided (or uniform) sampling and weighted SE(3) refinement, in passes."""
     from calib.refine.passes import load_calibrate_config
@@ -308,7 +315,7 @@ def calibrate(
 
         run_online(data, sequence, support, init, out, cfg, seed, overwrite, camera=camera)
         return
-    run_calibrate(data, sequence, support, init, out, cfg, runs, seed, overwrite, camera=camera)
+    run_calibrate(data, sequence, support, init, out, cfg, runs, seed, overwrite, camera=camera, check=check)
 
 
 @app.command()

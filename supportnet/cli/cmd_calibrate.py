@@ -6,6 +6,11 @@ every support: a paired comparison, as the paper's Experiment 3. The work is the
 (from :meth:`CalibrationResult.to_dict`, the first support's first run at the top level, every
 run and support under ``runs`` and ``results``), ``summary.md``, Fig. 1-style overlays before and
 after, the support maps used, and the resolved ``config.yaml``.
+
+Unless told not to (``check=False``), the top-level answer is then checked without ground truth
+(:func:`calib.verify.check_extrinsic`, as ``supportnet check`` does) on the frames it was
+calibrated on: a run that ended in a wrong minimum (it can end farther off than it started) says
+so in ``result.json``'s ``check`` and on the console, instead of looking like any other answer.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from calib.pipeline import Calibrator, select_frames
 from calib.projection import project_scan
 from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
+from calib.verify import CheckResult, check_extrinsic
 from calib.support.map_files import check_maps_fingerprint
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
@@ -132,7 +138,34 @@ def _markdown(result: dict) -> str:
             f"{name} beat uniform in translation in {p['translation_wins']} of {p['runs']} runs "
             f"and in rotation in {p['rotation_wins']} of {p['runs']}."
         )
+    if result["check"] is not None:
+        lines += ["", f"Check of the answer (no ground truth): {_check_line(result['check'])}"]
     return "\n".join(lines) + "\n"
+
+
+def _check_summary(result: CheckResult) -> dict:
+    """What ``result.json`` keeps of a check of the answer (``check.json`` of ``supportnet check``
+    without its per-frame table and config)."""
+    full = result.to_dict()
+    keep = ("verdict", "reasons", "score", "best_score", "alignment", "significance", "detectable_error")
+    return {
+        **{key: full[key] for key in keep},
+        "suggested_correction": full["suggested_correction"],
+        "suggested_T_cam_lidar": full["suggested_T_cam_lidar"],
+        "runtime_s": full["runtime_s"],
+    }
+
+
+def _check_line(check: dict) -> str:
+    c, d = check["suggested_correction"], check["detectable_error"]
+    line = (
+        f"{check['verdict']}: the best fit nearby is {c['rotation_deg']:.2f}° / {c['translation_cm']:.1f} cm "
+        f"away (significance {check['significance']['joint']:.1f}); the smallest error these frames show "
+        f"is {d['rotation_deg']:.2f}° / {d['translation_cm']:.1f} cm"
+    )
+    if check["verdict"] != "good":
+        line += ". This answer is likely wrong: calibrate again from another start (or --init stage1)"
+    return line
 
 
 def support_paths(text: str) -> list[Path]:
@@ -157,8 +190,10 @@ def run_calibrate(
     overwrite: bool = False,
     console: Console | None = None,
     camera: int | str | None = None,
+    check: bool = True,
 ) -> dict:
-    """Paired runs of Stage 4 for every support; returns what ``result.json`` holds."""
+    """Paired runs of Stage 4 for every support, the top-level answer checked (``check``);
+    returns what ``result.json`` holds."""
     console = console or make_console()
     inputs = [data, *support_paths(supports_text)]
     if init_text.startswith("file:"):
@@ -211,6 +246,10 @@ def run_calibrate(
                 # the same sampling draws for every support: a paired comparison
                 results[name].append(calibrator.calibrate(frames, T_init, seed=(seed, run), motions=motions))
                 progress.advance(task)
+    checked = None
+    if check:
+        with console.status(f"Checking the answer on {len(frames)} frame(s) (no ground truth)"):
+            checked = _check_summary(check_extrinsic(frames, results[supports[0].name][0].T_cam_lidar, seed=seed))
     by_support = {}
     for name, done in results.items():
         run_dicts = [{"run": k, **_with_indices(r, picks)} for k, r in enumerate(done)]
@@ -241,6 +280,7 @@ def run_calibrate(
         else {"translation_source": stage1.translation_source, **stage1.calibration.report()},
         "results": by_support,
         "paired_vs_uniform": paired,
+        "check": checked,
         "config": config.model_dump(mode="json"),
         "wall_s": time.perf_counter() - start,
     }

@@ -2,9 +2,12 @@ import json
 
 import numpy as np
 import pytest
+from rich.console import Console
 
 from calib.data import open_dataset
 from calib.errors import DataError
+from calib.pipeline import Calibrator
+from calib.results import CalibrationResult
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
 from calib.support.support_maps import load_maps_config
 from calib.synth.generate import Synthesizer, write_sequence
@@ -100,3 +103,33 @@ def test_offline_maps_of_another_dataset_or_corrupt_are_refused(still_vineyard, 
     (broken / "sequence.npz").write_bytes(b"not a zip file")
     with pytest.raises(DataError, match="not a readable maps file"):
         parse_supports(f"offline:{broken}")
+
+
+def test_the_answer_is_checked_and_a_wrong_one_is_flagged(still_vineyard, tmp_path, monkeypatch):
+    """The converged answer checks good; an answer left 3° / 20 cm off (a calibrator that returns
+    its start, as a run stuck in a wrong minimum would) is flagged on the console and in
+    result.json; ``check=False`` leaves it out."""
+    good = run_calibrate(still_vineyard, "00", "uniform", "perturb:10,2", tmp_path / "good", FAST)
+    assert good["check"]["verdict"] == "good"
+    assert "Check of the answer (no ground truth): good" in (tmp_path / "good" / "summary.md").read_text()
+
+    def stuck(self, frames, T_init, **kwargs):
+        T_init = np.asarray(T_init)
+        return CalibrationResult(
+            T_init, T_init, frames[0].calibration.T_cam_lidar, np.eye(6) * 1e-6, "uniform", [0, 1, 2], 0, 0.0
+        )
+
+    monkeypatch.setattr(Calibrator, "calibrate", stuck)
+    console = Console(record=True, width=200)
+    wrong = run_calibrate(
+        still_vineyard, "00", "uniform", "perturb:20,3", tmp_path / "wrong", FAST, console=console
+    )
+    assert wrong["error"]["rotation_deg"] == pytest.approx(3.0)
+    assert wrong["check"]["verdict"] == "bad"
+    assert wrong["check"]["suggested_correction"]["rotation_deg"] > 1.0
+    assert "This answer is likely wrong" in console.export_text()
+    assert json.loads((tmp_path / "wrong" / "result.json").read_text())["check"]["verdict"] == "bad"
+    unchecked = run_calibrate(
+        still_vineyard, "00", "uniform", "perturb:20,3", tmp_path / "unchecked", FAST, check=False
+    )
+    assert unchecked["check"] is None
