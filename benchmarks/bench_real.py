@@ -215,13 +215,13 @@ def real_datasets(work: Path, notes: dict) -> Iterator[Dataset]:
     yield Dataset(ALL6, lambda _run: (merged, T_a, {}), len(merged))
 
 
-def synthetic_datasets() -> Iterator[Dataset]:
+def synthetic_datasets(seeds: tuple[int, ...] = SYNTH_SEEDS) -> Iterator[Dataset]:
     cache: dict[tuple, tuple[list[Frame], np.ndarray]] = {}
 
     def sequence(world: str, timing: dict, seed: int) -> tuple[list[Frame], np.ndarray]:
         key = (world, tuple(timing.items()), seed)
         if key not in cache:
-            if len(cache) >= len(SYNTH_SEEDS):
+            if len(cache) >= len(seeds):
                 cache.clear()  # a dataset's sequences in memory at a time (its runs alternate them)
             config = load_synth_config(world, camera=SYNTH_CAMERAS[world], timing=timing)
             synth = Synthesizer(config, SYNTH_FRAMES, seed=seed)
@@ -233,7 +233,7 @@ def synthetic_datasets() -> Iterator[Dataset]:
             name = f"synth-{world}-{suffix}"
 
             def frames(run: int, world=world, timing=timing) -> tuple[list[Frame], np.ndarray, dict]:
-                seed = SYNTH_SEEDS[run % len(SYNTH_SEEDS)]
+                seed = seeds[run % len(seeds)]
                 f, T = sequence(world, timing, seed)
                 return f, T, {"seed": seed}
 
@@ -350,7 +350,14 @@ def main() -> None:
     parser.add_argument(
         "--shell", action="store_true", help="starts of exactly the level's size, not in its ball"
     )
+    parser.add_argument(
+        "--synth-seeds",
+        default=",".join(map(str, SYNTH_SEEDS)),
+        help="synthetic sequences' seeds, run i uses the (i mod n)-th (a config tuned on the default "
+        "seeds is measured honestly on others)",
+    )
     args = parser.parse_args()
+    synth_seeds = tuple(int(s) for s in args.synth_seeds.split(","))
     levels = args.levels.split(",")
     variants = args.variants.split(",")
     if bad := [x for x in levels if x not in LEVELS] + [v for v in variants if v not in VARIANTS]:
@@ -365,7 +372,7 @@ def main() -> None:
         "configs": {v: c.model_dump(mode="json") for v, c in configs.items()},
         "runs": args.runs,
         "start_draw": "shell" if args.shell else "ball",
-        "synthetic_seeds": list(SYNTH_SEEDS),
+        "synthetic_seeds": list(synth_seeds),
         "machine": f"{platform.machine()}, {platform.python_version()}",
         "real": {},
         "synthetic": {},
@@ -387,7 +394,7 @@ def main() -> None:
         if args.only != "synthetic":
             sources.append(("real", real_datasets(Path(work), notes)))
         if args.only != "real":
-            sources.append(("synthetic", synthetic_datasets()))
+            sources.append(("synthetic", synthetic_datasets(synth_seeds)))
         datasets = [(part, d) for part, source in sources for d in source]
         known = [d.name for _, d in datasets]
         if wanted is not None and (unknown := wanted - set(known)):

@@ -158,18 +158,25 @@ class EdgeAlignment:
         T = torch.as_tensor(T_cam_lidar, dtype=torch.float64)
         T = T[None] if T.ndim == 2 else T
         H, W = self.size
-        q = torch.einsum("cij,fnj->cfni", T[:, :3, :3], self.points) + T[:, None, None, :3, 3]
-        z = q[..., 2]
-        uvw = q @ self.K.T
-        u = uvw[..., 0] / z.clamp_min(1e-3)
-        v = uvw[..., 1] / z.clamp_min(1e-3)
-        grid = torch.stack([2 * u / (W - 1) - 1, 2 * v / (H - 1) - 1], -1).float()  # (C, F, N, 2)
-        sampled = F.grid_sample(
-            self.maps(sigma_px), grid.permute(1, 0, 2, 3), align_corners=True, padding_mode="zeros"
-        )[:, 0]  # (F, C, N)
-        sampled = torch.where((z.permute(1, 0, 2) > 0.5) & self.mask[:, None], sampled.double(), 0.0)
+        maps = self.maps(sigma_px)
+        points = self.points.reshape(-1, 3).float()  # (F·N, 3)
         counts = self.mask.sum(1).clamp_min(1).double()
-        return (sampled.sum(2) / counts[:, None]).T
+        # pixels in single precision (1e-7 of the image: far below a blur of pixels), the projection
+        # K·[R | t] folded into one (3, 4) per extrinsic, in chunks that stay in cache
+        P = (self.K @ T[:, :3, :]).float()  # (C, 3, 4)
+        out = []
+        for chunk in P.split(256):
+            uvw = points @ chunk[:, :, :3].transpose(1, 2) + chunk[:, None, :, 3]  # (c, F·N, 3)
+            uvw = uvw.reshape(len(chunk), *self.points.shape[:2], 3).transpose(0, 1)  # (F, c, N, 3)
+            z = uvw[..., 2]
+            depth = z.clamp_min(1e-3)
+            grid = torch.stack(
+                [uvw[..., 0] / depth * (2 / (W - 1)) - 1, uvw[..., 1] / depth * (2 / (H - 1)) - 1], -1
+            )
+            sampled = F.grid_sample(maps, grid, align_corners=True, padding_mode="zeros")[:, 0]  # (F, c, N)
+            sampled = torch.where((z > 0.5) & self.mask[:, None], sampled, 0.0)
+            out.append(sampled.double().sum(2) / counts[:, None])
+        return torch.cat(out, 1).T
 
     def __call__(self, T_cam_lidar: torch.Tensor, sigma_px: float) -> torch.Tensor:
         """``(C,)`` the score over all frames (their mean)."""

@@ -151,38 +151,38 @@ def reprojection_jacobian(points_cam: torch.Tensor, K: torch.Tensor) -> torch.Te
     """``∂π(K, exp(δ) · q) / ∂δ`` at ``δ = 0``: ``(*, N, 2, 6)`` for ``points_cam q (*, N, 3)``.
 
     ``∂(exp(δ) q)/∂δ = [I | −[q]×]`` (translation first, as kornia's ``Se3``), chained with
-    :func:`pinhole_jacobian`.
+    :func:`pinhole_jacobian`: a row ``a`` of ``∂π/∂q`` becomes ``(a, q × a)``.
 
     Args:
         points_cam: ``(*, N, 3)`` points in the camera frame (``z > 0``). K: ``(3, 3)``.
     """
     q = torch.as_tensor(points_cam, dtype=torch.float64)
     d_pi = pinhole_jacobian(q, K)  # (*, N, 2, 3)
-    x, y, z = q.unbind(-1)
-    zero, one = torch.zeros_like(z), torch.ones_like(z)
-    d_q = torch.stack(  # [I | −[q]×], −[q]× = [[0, z, −y], [−z, 0, x], [y, −x, 0]]
-        [
-            torch.stack([one, zero, zero, zero, z, -y], -1),
-            torch.stack([zero, one, zero, -z, zero, x], -1),
-            torch.stack([zero, zero, one, y, -x, zero], -1),
-        ],
-        -2,
-    )  # (*, N, 3, 6)
-    return d_pi @ d_q
+    # each row a of ∂π/∂q times [I | −[q]×]: (a, aᵀ(−[q]×)) = (a, q × a)
+    return torch.cat([d_pi, torch.linalg.cross(q[..., None, :].expand_as(d_pi), d_pi)], -1)
 
 
 def _at_camera_time(
-    points: torch.Tensor, time: TimeModel | None, offset: float
+    points: torch.Tensor, time: TimeModel | None, scan: torch.Tensor | None, offset: float
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Points in the LiDAR frame at the camera's time ``(N, 3)`` and ``∂p/∂δt (N, 3)``
-    (``points`` unchanged and ``None`` without a time model)."""
-    if time is None:
+    (``points`` unchanged and ``None`` without a time model); ``scan (N,)`` is ``time.scan`` as a
+    tensor."""
+    if time is None or scan is None:
         return points, None
     twists = torch.as_tensor(time.twists[:, 1 if offset >= 0 else 0], dtype=torch.float64)  # (F, 6)
-    A = se3_exp(-offset * twists)[torch.as_tensor(time.scan)]  # exp(−δt ξ_f) per point, (N, 4, 4)
+    A = se3_exp(-offset * twists)[scan]  # exp(−δt ξ_f) per point, (N, 4, 4)
     p = torch.einsum("nij,nj->ni", A[:, :3, :3], points) + A[:, :3, 3]
-    xi = twists[torch.as_tensor(time.scan)]
+    xi = twists[scan]
     return p, -(torch.linalg.cross(xi[:, 3:], p) + xi[:, :3])
+
+
+def _normal_equations(w: torch.Tensor, J: torch.Tensor, r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``H = Σ w Jᵀ J (P, P)`` and ``g = Σ w Jᵀ r (P,)`` for ``w (N,)``, ``J (N, 2, P)``, ``r (N, 2)``
+    (as one matrix product over the ``2N`` rows: a three-operand einsum is about 1.5x slower)."""
+    rows = J.reshape(-1, J.shape[-1])
+    weighted = rows * w.repeat_interleave(2)[:, None]
+    return weighted.T @ rows, weighted.T @ r.reshape(-1)
 
 
 def refine_extrinsic(
@@ -225,11 +225,12 @@ def refine_extrinsic(
     K = torch.as_tensor(np.asarray(K), dtype=f64)
     T = torch.as_tensor(np.asarray(T_init), dtype=f64)
     offset = time.offset_s if time is not None else 0.0
+    scan = torch.as_tensor(time.scan) if time is not None else None
     n_params = 7 if time is not None and time.estimate else 6
 
     def evaluate(T: torch.Tensor, offset: float) -> tuple[float, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Cost, residuals ``(N, 2)``, IRLS weights ``(N,)`` and the Jacobian ``(N, 2, n_params)``."""
-        points, d_offset = _at_camera_time(p, time, offset)
+        points, d_offset = _at_camera_time(p, time, scan, offset)
         q = points @ T[:3, :3].T + T[:3, 3]
         uvw = q @ K.T
         r = uvw[:, :2] / uvw[:, 2:3] - target
@@ -249,8 +250,7 @@ def refine_extrinsic(
     initial_cost, lam, converged, iterations = cost, config.initial_damping, False, 0
     while iterations < config.max_iterations:
         iterations += 1
-        H = torch.einsum("n,nai,naj->ij", w, J, J)
-        g = torch.einsum("n,nai,na->i", w, J, r)
+        H, g = _normal_equations(w, J, r)
         delta = -torch.linalg.solve(H + lam * torch.diag(torch.diag(H)), g)
         T_new = se3_exp(delta[:6]) @ T
         offset_new = offset + float(delta[6]) if n_params == 7 else offset
@@ -265,7 +265,7 @@ def refine_extrinsic(
         if float(torch.linalg.norm(step)) < config.step_tolerance:
             converged = True
             break
-    H = torch.einsum("n,nai,naj->ij", w, J, J)
+    H, _ = _normal_equations(w, J, r)
     dof = max(2 * used - n_params, 1)
     variance = float((w * (r * r).sum(1)).sum() / dof)
     covariance = torch.linalg.pinv(H) * variance
