@@ -36,8 +36,8 @@ from calib.pipeline import Calibrator, select_frames
 from calib.projection import project_scan
 from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
-from calib.verify import CheckResult, check_extrinsic
 from calib.support.map_files import check_maps_fingerprint
+from calib.verify import CheckResult, check_extrinsic
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, map_picture
@@ -249,7 +249,9 @@ def run_calibrate(
     checked = None
     if check:
         with console.status(f"Checking the answer on {len(frames)} frame(s) (no ground truth)"):
-            checked = _check_summary(check_extrinsic(frames, results[supports[0].name][0].T_cam_lidar, seed=seed))
+            checked = _check_summary(
+                check_extrinsic(frames, results[supports[0].name][0].T_cam_lidar, seed=seed)
+            )
     by_support = {}
     for name, done in results.items():
         run_dicts = [{"run": k, **_with_indices(r, picks)} for k, r in enumerate(done)]

@@ -7,8 +7,8 @@ from rich.console import Console
 from calib.data import open_dataset
 from calib.errors import DataError
 from calib.pipeline import Calibrator
-from calib.results import CalibrationResult
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
+from calib.results import CalibrationResult
 from calib.support.support_maps import load_maps_config
 from calib.synth.generate import Synthesizer, write_sequence
 from calib.synth.synth_config import load_synth_config
