@@ -1,13 +1,16 @@
 """Stage 4's global coarse stage: where the dense matcher cannot reach (its capture range is about
 a dozen pixels), climb the edge-alignment score (:class:`calib.match.edge_alignment.EdgeAlignment`)
-coarse to fine over a pyramid of blur scales ``σ``. At the coarsest scale a grid of rotations
-around the start is scored and the best few are climbed over all six parameters; scales above
-``rotation_only_above_px`` (none by default) search rotation alone. Searching rotation alone first
-lets it absorb a translation error it cannot undo later: on synthetic urban frames at KITTI's scale
-from 10° / 50 cm the old default (rotation only at 32 and 16 px) left a median 45 cm, all six from
-16 px down brought 9 of 10 draws within about 20 cm / 2.2° (on the seeds it was chosen on; on an
-unseen urban seed the search alone fails with either, README). Each scale's steps
-scale with ``σ``; a move is taken only when the score rises, so every level can only improve it.
+coarse to fine over a pyramid of blur scales ``σ``. At the coarsest scale a dense grid of rotations
+around the start is scored; its best ``starts`` cells are climbed over all six parameters, and each
+of them is carried through every finer scale. The answer is the hypothesis that scores best at the
+finest scale. Each scale's steps scale with ``σ``; a move is taken only when the score rises.
+
+Why this shape (synthetic urban at KITTI's scale from 8° / 40 cm, README): at 16 px the score
+rates poses 50–130 cm off above the truth on some scenes, so a search that starts there runs off;
+at 8 px the truth outscores every answer found, but its basin is narrow, so the first scale is a
+dense grid (13³ rotations, ±7.6°) at 8 px rather than a sparse one at 16 px. Which hypothesis is
+right often shows only at the finer scales, hence all are carried. Searching rotation alone first
+lets it absorb a translation error it cannot undo later, so every scale searches all six.
 It runs once per edge map in ``scores`` (:data:`calib.match.edge_alignment.SCORE_KINDS`: which one
 finds the basin depends on the scene); the dense passes then keep the answer they align best.
 """
@@ -43,12 +46,11 @@ class GlobalSearchConfig(BaseModel):
         SCORE_KINDS, min_length=1, description="edge maps searched, each giving the dense passes a start"
     )
     sigmas_px: tuple[PositiveFloat, ...] = Field(
-        (16.0, 8.0, 4.0, 2.0), min_length=1, description="blur scales, coarse to fine (px at f = 721)"
+        (8.0, 4.0, 2.0), min_length=1, description="blur scales, coarse to fine (px at f = 721)"
     )
-    rotation_only_above_px: float = Field(24.0, gt=0, description="scales above this search rotation only")
-    grid: int = Field(7, ge=1, le=9, description="rotations per axis of the coarsest level's grid")
+    grid: int = Field(13, ge=1, le=21, description="rotations per axis of the coarsest level's grid")
     grid_spacing: float = Field(2.0, gt=0, description="grid spacing in steps of the coarsest scale")
-    starts: int = Field(3, ge=1, description="best grid cells climbed at the coarsest scale")
+    starts: int = Field(8, ge=1, description="best grid cells climbed and carried through every scale")
     depth_m: float = Field(10.0, gt=0, description="typical depth: translation step = rotation step x this")
     max_translation_m: float = Field(1.0, gt=0, description="translation never leaves the start by more")
     contour_points: int = Field(1200, ge=10, description="contour points per frame")
@@ -78,14 +80,14 @@ def _climb(
     T_start: torch.Tensor,
     config: GlobalSearchConfig,
 ) -> tuple[torch.Tensor, float]:
-    """Pattern search: take the best of the 12 (or 6) neighbouring moves while it raises the
-    score, halve the steps when none does, stop at a quarter of the first step."""
+    """Pattern search: take the best of the 12 neighbouring moves while it raises the score, halve
+    the steps when none does, stop at a quarter of the first step."""
     best = float(score(T, sigma)[0])
     smallest, moves = rotation / 4, 0
     while rotation >= smallest and moves < config.max_iterations:
         moves += 1
         steps = twist_steps(rotation, translation)
-        candidates = se3_exp(steps if translation > 0 else steps[6:]) @ T  # rotation only at 0
+        candidates = se3_exp(steps) @ T
         values = score(candidates, sigma)
         offset = (torch.linalg.inv(T_start) @ candidates)[:, :3, 3].norm(dim=1)
         values = torch.where(offset > config.max_translation_m, -1.0, values)
@@ -120,20 +122,22 @@ def global_search(
     )
     focal = float(frames[0].K[0, 0])
     T_start = torch.as_tensor(np.asarray(T_init, np.float64))
-    T, levels = T_start, []
+    hypotheses: list[tuple[torch.Tensor, float]] = []
+    levels = []
     for level, sigma_ref in enumerate(config.sigmas_px):
         sigma = sigma_ref * focal / REFERENCE_FOCAL_PX
         rotation = sigma / focal  # one σ of image motion, radians
-        translation = 0.0 if sigma_ref > config.rotation_only_above_px else rotation * config.depth_m
-        before = float(score(T, sigma)[0])
-        if level == 0 and config.grid > 1:  # a grid of rotations around the start, its best climbed
-            cells = se3_exp(_rotation_grid(config.grid, config.grid_spacing * rotation)) @ T
-            top = score(cells, sigma).topk(min(config.starts, len(cells))).indices
-            climbed = [_climb(score, sigma, cells[i], rotation, translation, T_start, config) for i in top]
-            T, after = max(climbed, key=lambda c: c[1])
-            if after < before:  # the grid can only help
-                T, after = T_start, before
-        else:
-            T, after = _climb(score, sigma, T, rotation, translation, T_start, config)
+        translation = rotation * config.depth_m
+        if level == 0:  # a grid of rotations around the start, its best cells the hypotheses
+            cells = se3_exp(_rotation_grid(config.grid, config.grid_spacing * rotation)) @ T_start
+            hypotheses = [
+                (cells[i], 0.0) for i in score(cells, sigma).topk(min(config.starts, len(cells))).indices
+            ]
+        before = float(score(torch.stack([T for T, _ in hypotheses]), sigma).max())
+        hypotheses = [_climb(score, sigma, T, rotation, translation, T_start, config) for T, _ in hypotheses]
+        after = max(value for _, value in hypotheses)
         levels.append({"sigma_px": sigma, "score_before": before, "score_after": after})
+    T, best = max(hypotheses, key=lambda h: h[1])
+    if best < float(score(T_start, sigma)[0]):  # the search can only help
+        T = T_start
     return GlobalSearchResult(T.numpy(), levels)
