@@ -8,8 +8,8 @@ kornia's ``Se3.log`` handles small angles (float64 gradcheck at the identity pas
 ``tests/calib/test_geometry.py`` keeps asserting it), so it is used directly. The exponential is
 written out in closed form instead (and tested against kornia's ``Se3.exp``): kornia builds a
 quaternion and two group objects per call, about 5.7 ms whatever the batch, and Stage 4 calls it
-a few thousand times per calibration (every solver step, every candidate batch of the global
-search); the closed form takes about 0.1 ms.
+about 1900 times per calibration (every solver step, every candidate batch of the global
+search); the closed form took 1.1–1.4 ms for 1–12 twists, measured on the same loaded machine.
 """
 
 from __future__ import annotations
