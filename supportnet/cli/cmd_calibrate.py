@@ -38,6 +38,7 @@ from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
 from calib.support.map_files import check_maps_fingerprint
 from calib.verify import CheckResult, check_extrinsic
+from supportnet.cli.cmd_check import check_line
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, map_picture
@@ -147,22 +148,23 @@ def _check_summary(result: CheckResult) -> dict:
     """What ``result.json`` keeps of a check of the answer (``check.json`` of ``supportnet check``
     without its per-frame table and config)."""
     full = result.to_dict()
-    keep = ("verdict", "reasons", "score", "best_score", "alignment", "significance", "detectable_error")
-    return {
-        **{key: full[key] for key in keep},
-        "suggested_correction": full["suggested_correction"],
-        "suggested_T_cam_lidar": full["suggested_T_cam_lidar"],
-        "runtime_s": full["runtime_s"],
-    }
+    keep = (
+        "verdict",
+        "reasons",
+        "score",
+        "best_score",
+        "alignment",
+        "significance",
+        "detectable_error",
+        "suggested_correction",
+        "suggested_T_cam_lidar",
+        "runtime_s",
+    )
+    return {key: full[key] for key in keep}
 
 
 def _check_line(check: dict) -> str:
-    c, d = check["suggested_correction"], check["detectable_error"]
-    line = (
-        f"{check['verdict']}: the best fit nearby is {c['rotation_deg']:.2f}° / {c['translation_cm']:.1f} cm "
-        f"away (significance {check['significance']['joint']:.1f}); the smallest error these frames show "
-        f"is {d['rotation_deg']:.2f}° / {d['translation_cm']:.1f} cm"
-    )
+    line = check_line(check)
     if check["verdict"] != "good":
         line += ". This answer is likely wrong: calibrate again from another start (or --init stage1)"
     return line

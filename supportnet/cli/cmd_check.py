@@ -26,7 +26,7 @@ from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, tag
 
-__all__ = ["load_check_config", "run_check", "spread"]
+__all__ = ["check_line", "load_check_config", "run_check", "spread"]
 
 
 def load_check_config(path: Path | None = None, **overrides: object) -> CheckConfig:
@@ -67,6 +67,18 @@ def _overlay(frame, result: CheckResult) -> np.ndarray:
 def _fmt(value: float | None, unit: str, digits: int) -> str:
     space = "" if unit == "°" else " "
     return "not observed" if value is None else f"{value:.{digits}f}{space}{unit}"
+
+
+def check_line(check: dict) -> str:
+    """One line of a check's answer, from :meth:`CheckResult.to_dict` (or a dict with its
+    ``verdict``, ``suggested_correction``, ``significance`` and ``detectable_error``)."""
+    c, d = check["suggested_correction"], check["detectable_error"]
+    return (
+        f"{check['verdict']}: best fit nearby {c['rotation_deg']:.2f}° / {c['translation_cm']:.1f} cm away "
+        f"(significance {check['significance']['joint']:.1f}); "
+        f"smallest error this data shows {_fmt(d['rotation_deg'], '°', 2)} / "
+        f"{_fmt(d['translation_cm'], 'cm', 1)}"
+    )
 
 
 def _markdown(output: dict) -> str:
@@ -152,12 +164,8 @@ def run_check(
         (tmp / "check.md").write_text(_markdown(output))
         (tmp / "config.yaml").write_text(resolved_config(config))
         write_image(tmp / "overlay.png", _overlay(frames[0], result))
-    c, d = result.correction, result.detectable
     console.print(
-        f"{result.verdict}: best fit nearby {c.rotation_deg:.2f}° / {c.translation_cm:.1f} cm away "
-        f"(significance {result.significance['joint']:.1f}); "
-        f"smallest error this data shows {_fmt(d['rotation_deg'], '°', 2)} / "
-        f"{_fmt(d['translation_cm'], 'cm', 1)}; {len(frames)} frame(s) in {result.runtime_s:.1f} s",
+        f"{check_line(output)}; {len(frames)} frame(s) in {result.runtime_s:.1f} s",
         markup=False,
         highlight=False,
         soft_wrap=True,
