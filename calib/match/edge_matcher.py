@@ -180,6 +180,22 @@ class ScanFeatures:
         return cls(np.asarray(intensity, np.float32), ring_spacing_deg(points_lidar))
 
 
+def _nearest_seeds(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, the id of its nearest seed (``ids (H, W)`` ≥ 0) twice: with ties between
+    equidistant seeds broken toward the top left and toward the bottom right.
+
+    A Euclidean transform gives a pixel equidistant from two seeds to the first in scan order, the
+    upper left one, so a boundary that falls on a pixel moves half a pixel right or down. With
+    returns 1–3 px apart that happens often: alone it put every LiDAR edge 0.2 px right of the
+    image's at a working focal length of 360 px (a scene of boxes seen from one centre, and
+    its mirror image). The same transform of the flipped image breaks ties the other way.
+    """
+    _, (ri, ci) = ndimage.distance_transform_edt(ids < 0, return_indices=True)
+    _, (rf, cf) = ndimage.distance_transform_edt(ids[::-1, ::-1] < 0, return_indices=True)
+    H, W = ids.shape
+    return ids[ri, ci], ids[H - 1 - rf[::-1, ::-1], W - 1 - cf[::-1, ::-1]]
+
+
 def lidar_edges(
     scan: ProjectedScan,
     points_lidar: np.ndarray,
@@ -221,19 +237,21 @@ def lidar_edges(
     # midway between its last return and the sky, not at the fill radius
     sky = len(scan.depth)
     ids[(dist > fill_px) & sees] = sky
-    _, (ri, ci) = ndimage.distance_transform_edt(ids < 0, return_indices=True)
-    nearest = ids[ri, ci]
-    depth = np.append(scan.depth, config.far_depth_m)
+    first, second = _nearest_seeds(ids)
+    log_depth = np.log(np.append(scan.depth, config.far_depth_m))
     intensity = np.append(scan.intensity / max(float(np.percentile(scan.intensity, 99)), 1e-6), 0.0)
-    log_depth, intensity = np.log(depth[nearest]), intensity[nearest]
+    inverse_depth = np.append(1.0 / scan.depth, 0.0)
+    # a pixel midway between two returns reads half of each: its boundary falls in its middle
+    log_depth, intensity, inverse_depth = (
+        0.5 * (x[first] + x[second]) for x in (log_depth, intensity, inverse_depth)
+    )
 
     gx, gy, m = _gradient(log_depth, 0.7)
     start, full = config.depth_edge_px
     field = _orientation_field(gx, gy, np.clip((m - start) / (full - start), 0, 1))
     gx, gy, m = _gradient(np.clip(intensity, 0, 1), 0.7)
     field += config.intensity_weight * _orientation_field(gx, gy, np.clip(m / config.intensity_edge_px, 0, 1))
-    inverse_depth = np.append(1.0 / scan.depth, 0.0)[nearest].astype(np.float32)
-    return field * ((dist <= fill_px + 1) | sees), inverse_depth
+    return field * ((dist <= fill_px + 1) | sees), inverse_depth.astype(np.float32)
 
 
 def _splat(values: np.ndarray, uv: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
@@ -289,8 +307,9 @@ def lidar_field(
     scan = project_scan(levelled, T_centre, K, image_size, None)
     field, inverse_depth = lidar_edges(scan, points_lidar, T_centre, K, config, features.ring_spacing_deg)
     rows, cols = np.nonzero(np.abs(field).sum(0) > 0)
-    # the nearer side of an edge: the largest inverse depth around it (0 in open sky: no parallax)
-    nearer = ndimage.maximum_filter(inverse_depth, size=5)[rows, cols].astype(np.float64)
+    # the nearer side of an edge: the largest inverse depth within 3 px, as far as a step's
+    # gradient reaches (blur σ 0.7 and Sobel; 0 in open sky: no parallax)
+    nearer = ndimage.maximum_filter(inverse_depth, size=7)[rows, cols].astype(np.float64)
     rays = np.linalg.inv(K) @ np.stack([cols, rows, np.ones_like(cols)]).astype(np.float64)
     t = np.asarray(T_cam_lidar, np.float64)[:3, 3, None]
     uvw = K @ (rays + t * nearer)  # K (z·ray + t) / z: the same direction up to scale
