@@ -13,7 +13,7 @@ from typing import Annotated, Literal
 import numpy as np
 import torch
 from annotated_types import Ge, Le
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat
 
 from calib.data.types import Frame
 from calib.errors import DataError, NumericalError
@@ -185,6 +185,14 @@ class CalibrateConfig(BaseModel):
     )
     halvings: int = Field(
         2, ge=0, description="how often a pass that did not help is halved before it is undone"
+    )
+    halve_above: tuple[NonNegativeFloat, NonNegativeFloat] = Field(
+        (1.0, 0.05),
+        description="(cm, °): a pass that did not help is halved only when its update passes either; "
+        "a smaller one is undone at once and the passes stop (each halving costs a matching, and "
+        "half of so small a step is within the matcher's noise). Six KITTI frames (5 draws) and "
+        "synthetic urban (4) from 10° / 50 cm: 8 of 9 answers the same, one 1.24 -> 1.11 cm, 7 % "
+        "less time",
     )
     outliers: OutlierConfig = Field(OutlierConfig(), description="points, frames and matches left out")
     coarse: GlobalSearchConfig = Field(
@@ -361,8 +369,9 @@ def refine_passes(
     ``config.check_passes`` the matching that starts the next pass (one extra round after the
     last) checks the pass: when the median residual the matcher measures under the new estimate
     is not below the one under the previous estimate, the estimate goes back half the pass's
-    update and is checked again (``config.halvings`` times, a backtracking line search), and
-    after that the pass is undone and the passes stop.
+    update and is checked again (``config.halvings`` times, a backtracking line search; a pass
+    that moved less than ``config.halve_above`` is not halved), and after that the pass is undone
+    and the passes stop.
 
     ``alternatives`` are other starts (``(4, 4)`` each, a coarse stage's answer). The first pass
     runs from each start, and the passes go on from the one whose first pass ends best aligned,
@@ -489,7 +498,11 @@ def refine_passes(
                 last["alignment_after_px"] = alignment
                 checked = config.check_passes and last["alignment_px"] < reach_px
                 if checked and not alignment < last["alignment_px"]:
-                    if last["step"] > 0.5**config.halvings:  # back along the pass's update, half way
+                    cm, deg = config.halve_above
+                    worth = last["step"] < 1 or (
+                        last["update"]["translation_cm"] > cm or last["update"]["rotation_deg"] > deg
+                    )
+                    if worth and last["step"] > 0.5**config.halvings:  # back along the update, half way
                         last["step"] /= 2
                         T = _along(T_before, T, 0.5)
                         dt = None if dt is None else (dt + dt_before) / 2

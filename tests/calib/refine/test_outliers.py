@@ -123,7 +123,9 @@ def test_a_pass_that_makes_the_residuals_worse_is_undone():
     T_init = perturb(T_TRUE, 2.0, 0.5, torch.Generator().manual_seed(3))
     T_lie = perturb(T_init, 10.0, 2.0, torch.Generator().manual_seed(4))  # farther from the truth
     # every pass checked (the lie is farther than the matcher's reach a real check needs)
-    config = CalibrateConfig(passes=3, sampling={"per_frame": 500}, halvings=0, check_below_px=100.0)
+    config = CalibrateConfig(
+        passes=3, sampling={"per_frame": 500}, halvings=0, check_below_px=100.0, halve_above=(0.0, 0.0)
+    )
     matcher = ScriptedMatcher(T_lie, lie_calls=len(frames))  # the first pass is led astray
     result = refine_passes(frames, T_init, matcher, UniformSupport(), config, np.random.default_rng(0))
     assert np.allclose(result.T_cam_lidar, T_init)
@@ -137,6 +139,12 @@ def test_a_pass_that_makes_the_residuals_worse_is_undone():
     assert backed.passes[0]["accepted"] and backed.passes[0]["step"] < 1
     assert backed.passes[0]["alignment_after_px"] < backed.passes[0]["alignment_px"]
     assert calibration_error(backed.T_cam_lidar, T_TRUE).rotation_deg < 0.001
+    # a pass smaller than `halve_above` is undone at once, without halvings
+    small = halving.model_copy(update={"halve_above": (1000.0, 1000.0)})
+    matcher = ScriptedMatcher(T_lie, lie_calls=len(frames))
+    undone = refine_passes(frames, T_init, matcher, UniformSupport(), small, np.random.default_rng(0))
+    assert np.allclose(undone.T_cam_lidar, T_init) and undone.passes[0]["accepted"] is False
+    assert len(undone.passes) == 1 and matcher.calls == 2 * len(frames)
     # unchecked, the pass is kept
     unchecked = config.model_copy(update={"check_passes": False, "passes": 1})
     kept = refine_passes(
