@@ -133,7 +133,7 @@ class Calibrator:
                 raise DataError("motions", f"have no motion for the frames at positions {missing}")
             motions = [known[i] for i in picks]
         else:
-            motions, why = scan_motions(seq, picks, cfg.neighbours)
+            motions, why = scan_motions(seq, picks, cfg.neighbours, deskew_rounds=cfg.deskew_rounds)
             if motions is None:
                 return None, f"not modelled, points as measured: {why}"
         return scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
@@ -368,7 +368,9 @@ class OnlineCalibrator:
         cfg = self.config.time_offset
         if cfg.mode == "off":
             return None
-        motions, _ = scan_motions(self._buffer, range(len(self._buffer)), cfg.neighbours)
+        motions, _ = scan_motions(
+            self._buffer, range(len(self._buffer)), cfg.neighbours, deskew_rounds=cfg.deskew_rounds
+        )
         if motions is None:
             return None
         # no δt restarts: the running estimate is tracked across windows

@@ -123,6 +123,16 @@ class TimeOffsetConfig(BaseModel):
         description="scans either side of each used frame given to the LiDAR odometry; its twist is "
         "the geodesic over that many scans each way (averages one registration's error over them)",
     )
+    deskew_rounds: int = Field(
+        1,
+        ge=0,
+        le=5,
+        description="with per-point times, the LiDAR odometry runs this many times more on the scans "
+        "deskewed by its last run (KISS-ICP deskews a short run's first scans with no motion; "
+        ":func:`~calib.init.lidar_odometry.scan_motions`). Synthetic urban at 8 m/s, ten scans, "
+        "three seeds: median speed error 0.58-0.93 m/s, 0.18-0.26 after one round, 0.08-0.29 "
+        "after two; each round costs about one more odometry run (1-2 s)",
+    )
 
 
 class CalibrateConfig(BaseModel):

@@ -233,7 +233,9 @@ def run_calibrate(
         motions: dict[int, ScanMotion] | str = "time_offset.mode: off"
         if config.time_offset.mode != "off":  # the LiDAR's motion around each frame, once for all runs
             with console.status("LiDAR odometry around the frames (time offset)"):
-                found, why = scan_motions(seq, picks, config.time_offset.neighbours)
+                found, why = scan_motions(
+                    seq, picks, config.time_offset.neighbours, deskew_rounds=config.time_offset.deskew_rounds
+                )
             motions = dict(enumerate(found)) if found is not None else why
     calibrators = {s.name: Calibrator(support=s, matcher=matcher, config=config) for s in supports}
     results: dict[str, list[CalibrationResult]] = {name: [] for name in calibrators}
