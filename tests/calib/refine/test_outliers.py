@@ -228,11 +228,14 @@ class FewAt(ScriptedMatcher):
         )
 
 
+PROBE = {"passes": 1, "sampling": {"per_frame": 500}, "check_passes": False}
+
+
 def test_a_start_matched_by_few_points_is_not_kept_for_its_low_residual():
     frames = [_frame(i) for i in range(3)]
     T_init = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
     T_few = perturb(T_TRUE, 50.0, 10.0, torch.Generator().manual_seed(3))
-    probe = {"passes": 1, "sampling": {"per_frame": 500}, "check_passes": False}
+    probe = PROBE
     lured = refine_passes(
         frames,
         T_init,
@@ -254,3 +257,28 @@ def test_a_start_matched_by_few_points_is_not_kept_for_its_low_residual():
     )
     assert result.start == 0
     assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.05
+
+
+def test_an_initial_extrinsic_matched_by_few_points_gives_way_to_a_start_matched_by_many():
+    """The initial extrinsic is a prior, but not when its pass leaves the matcher a few lucky
+    points: a coarse answer matched by 150x as many, at 1 px of noise, is taken instead (under
+    the margin rule alone the initial's near-zero median would keep it)."""
+    frames = [_frame(i) for i in range(3)]
+    T_few = perturb(T_TRUE, 50.0, 10.0, torch.Generator().manual_seed(3))
+    T_coarse = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
+    config = CalibrateConfig(**PROBE)
+    result = refine_passes(
+        frames, T_few, FewAt(T_few), UniformSupport(), config, np.random.default_rng(0), [T_coarse]
+    )
+    assert result.start == 1
+    assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.05
+    kept = refine_passes(  # with no share asked of the initial, its 20 perfect matches win
+        frames,
+        T_few,
+        FewAt(T_few),
+        UniformSupport(),
+        config.model_copy(update={"coarse_min_share": 0.0}),
+        np.random.default_rng(0),
+        [T_coarse],
+    )
+    assert kept.start == 0
