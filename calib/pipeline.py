@@ -247,6 +247,9 @@ class Calibrator:
                     "alignment_after_first_pass_px": dict(
                         zip(origins, probed.probe_alignments_px, strict=True)
                     ),
+                    "correspondences_after_first_pass": dict(
+                        zip(origins, probed.probe_correspondences, strict=True)
+                    ),
                 }
             )
         covariance_t, covariance_r = passes.covariance[:3, :3], passes.covariance[3:, 3:]

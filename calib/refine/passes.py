@@ -322,7 +322,9 @@ class PassesResult:
     :class:`ScanTiming` (the std ``None`` where ``δt`` was held); ``time_offset_restarts`` one
     dict per ``δt`` restart (its ``δt``; the median residual of the settled answer, after its
     first pass and, where that was better, after its passes; how far that moved the translation;
-    taken)."""
+    taken); ``probe_correspondences`` how many correspondences the matching after each start's
+    first pass found (0 where it could not fit; a start with fewer than ``coarse_min_share`` of
+    the most is ruled out)."""
 
     T_cam_lidar: np.ndarray
     covariance: np.ndarray
@@ -333,6 +335,7 @@ class PassesResult:
     time_offset_s: float | None = None
     time_offset_std_s: float | None = None
     time_offset_restarts: list[dict] = field(default_factory=list)
+    probe_correspondences: list[int] = field(default_factory=list)
 
 
 def draw(
@@ -545,6 +548,7 @@ def refine_passes(
     dt = dt_start = None if timing is None else timing.offset_s
     starts = [np.asarray(T, np.float64) for T in (T_init, *alternatives)]
     T, T_before, history, fits, pending, chosen, probes = starts[0], None, [], [], None, 0, []
+    counts = np.zeros(0, int)
     if len(starts) > 1:
         for k, T_start in enumerate(starts):
             try:
@@ -610,6 +614,7 @@ def refine_passes(
         dt,
         last.time_offset_std_s,
         restarts,
+        [int(n) for n in counts],
     )
 
 

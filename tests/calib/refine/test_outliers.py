@@ -271,6 +271,7 @@ def test_an_initial_extrinsic_matched_by_few_points_gives_way_to_a_start_matched
         frames, T_few, FewAt(T_few), UniformSupport(), config, np.random.default_rng(0), [T_coarse]
     )
     assert result.start == 1
+    assert result.probe_correspondences == [60, 9000]  # 20 lucky points in each of 3 frames
     assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.05
     kept = refine_passes(  # with no share asked of the initial, its 20 perfect matches win
         frames,
