@@ -80,8 +80,9 @@ def test_the_calibrator_records_both_coarse_stages(urban):
     assert all(level["score_after"] >= level["score_before"] for level in result.coarse[:2])
     choice = result.coarse[2]  # the passes went on from the better-aligned of the two starts
     after, counts = choice["alignment_after_first_pass_px"], choice["correspondences_after_first_pass"]
-    # of those that kept half the most correspondences any start kept
-    eligible = {origin: px for origin, px in after.items() if counts[origin] >= 0.5 * max(counts.values())}
+    # of those that kept coarse_min_share of the most correspondences any start kept
+    least = config.coarse_min_share * max(counts.values())
+    eligible = {origin: px for origin, px in after.items() if counts[origin] >= least}
     assert choice["kept"] == min(eligible, key=eligible.get)
     assert len(result.passes) == 1
 

@@ -235,13 +235,12 @@ def test_a_start_matched_by_few_points_is_not_kept_for_its_low_residual():
     frames = [_frame(i) for i in range(3)]
     T_init = perturb(T_TRUE, 5.0, 1.0, torch.Generator().manual_seed(2))
     T_few = perturb(T_TRUE, 50.0, 10.0, torch.Generator().manual_seed(3))
-    probe = PROBE
     lured = refine_passes(
         frames,
         T_init,
         FewAt(T_few),
         UniformSupport(),
-        CalibrateConfig(**probe, coarse_min_share=0.0),
+        CalibrateConfig(**PROBE, coarse_min_share=0.0),
         np.random.default_rng(0),
         [T_few],
     )
@@ -251,7 +250,7 @@ def test_a_start_matched_by_few_points_is_not_kept_for_its_low_residual():
         T_init,
         FewAt(T_few),
         UniformSupport(),
-        CalibrateConfig(**probe),
+        CalibrateConfig(**PROBE),
         np.random.default_rng(0),
         [T_few],
     )
