@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 import torch
@@ -16,7 +18,9 @@ __all__ = [
     "depth_discontinuities",
     "horizontal_gradient",
     "level_laser_gains",
+    "RingProfile",
     "ring_spacing_deg",
+    "ring_spacing_profile",
     "scan_lines",
 ]
 
@@ -76,13 +80,11 @@ def depth_discontinuities(
     return nearer, farther
 
 
-def ring_spacing_deg(points_lidar: np.ndarray, column_deg: float = 0.4, same_ring_deg: float = 0.1) -> float:
-    """Median elevation gap between vertically neighbouring rings of a spinning LiDAR's scan, in
-    degrees (KITTI's HDL-64: 0.4; nuScenes' 32 rings: 1.33), 0 for fewer than two rings.
-
-    Within each azimuth column ``column_deg`` wide, elevations closer than ``same_ring_deg`` count
-    as one ring; gaps over 3° (a missing return) are left out.
-    """
+def _ring_gaps(
+    points_lidar: np.ndarray, column_deg: float, same_ring_deg: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Elevation gaps (°) between vertically neighbouring returns of each azimuth column
+    ``column_deg`` wide (closer than ``same_ring_deg``: one ring), and each gap's lower end (°)."""
     xyz = np.asarray(points_lidar, np.float64)[:, :3]
     horizontal = np.hypot(xyz[:, 0], xyz[:, 1])
     column = np.floor(np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])) / column_deg).astype(np.int64)
@@ -90,8 +92,77 @@ def ring_spacing_deg(points_lidar: np.ndarray, column_deg: float = 0.4, same_rin
     order = np.lexsort((elevation, column))
     c, e = column[order], elevation[order]
     gap = np.diff(e)
-    between = (c[1:] == c[:-1]) & (gap >= same_ring_deg) & (gap < 3.0)
-    return float(np.median(gap[between])) if between.any() else 0.0
+    between = (c[1:] == c[:-1]) & (gap >= same_ring_deg)
+    return gap[between], e[:-1][between]
+
+
+def ring_spacing_deg(points_lidar: np.ndarray, column_deg: float = 0.4, same_ring_deg: float = 0.1) -> float:
+    """Median elevation gap between vertically neighbouring rings of a spinning LiDAR's scan, in
+    degrees (KITTI's HDL-64: 0.4; nuScenes' 32 rings: 1.33), 0 for fewer than two rings.
+
+    Within each azimuth column ``column_deg`` wide, elevations closer than ``same_ring_deg`` count
+    as one ring; gaps over 3° (a missing return) are left out.
+    """
+    return ring_spacing_profile(points_lidar, column_deg, same_ring_deg).median_deg
+
+
+@dataclass(frozen=True)
+class RingProfile:
+    """The spacing between neighbouring rings of a spinning LiDAR along its elevation.
+
+    Many scanners space their lasers unevenly: a Pandar64 (the PJLab rig) puts 0.17° between them
+    from −6° to +2° and 1–6° above and below, so one median spacing would leave its outer rings
+    far apart (:func:`ring_spacing_profile`).
+
+    Attributes:
+        elevation_deg: ``(B,)`` increasing elevations (°), the centres of the bins measured.
+        spacing_deg: ``(B,)`` the median gap between rings around each.
+        median_deg: :func:`ring_spacing_deg` of the scan.
+    """
+
+    elevation_deg: np.ndarray
+    spacing_deg: np.ndarray
+    median_deg: float
+
+    def at(self, elevation_deg: np.ndarray | float) -> np.ndarray:
+        """Spacing (°) at ``elevation_deg`` (any shape), linear between the bins and constant
+        beyond them; 0 for a scan without two rings."""
+        if len(self.elevation_deg) == 0:
+            return np.zeros_like(np.asarray(elevation_deg, np.float64))
+        return np.interp(elevation_deg, self.elevation_deg, self.spacing_deg)
+
+
+def ring_spacing_profile(
+    points_lidar: np.ndarray,
+    column_deg: float = 0.4,
+    same_ring_deg: float = 0.1,
+    bin_deg: float = 0.5,
+    max_gap_deg: float = 8.0,
+    min_gaps: int = 20,
+) -> RingProfile:
+    """:class:`RingProfile` of a spinning LiDAR's scan: the gaps of :func:`ring_spacing_deg`
+    (up to ``max_gap_deg``) in bins ``bin_deg`` wide, each gap counted in every bin it spans; the
+    median of each bin that at least ``min_gaps`` span (a missing return doubles a gap now and
+    then). A bin where dense rings end and sparse ones begin reads the sparse gap it lies in."""
+    gap, lower = _ring_gaps(points_lidar, column_deg, same_ring_deg)
+    median = float(np.median(gap[gap < 3.0])) if (gap < 3.0).any() else 0.0  # as ring_spacing_deg
+    keep = gap < max_gap_deg
+    gap, lower = gap[keep], lower[keep]
+    if len(gap) == 0:
+        return RingProfile(np.zeros(0), np.zeros(0), median)
+    first = np.floor(lower / bin_deg).astype(np.int64)
+    spans = np.floor((lower + gap) / bin_deg).astype(np.int64) - first + 1
+    index = np.repeat(first, spans) + np.arange(spans.sum()) - np.repeat(np.cumsum(spans) - spans, spans)
+    spanned = np.repeat(gap, spans)
+    order = np.argsort(index, kind="stable")
+    bins, starts, counts = np.unique(index[order], return_index=True, return_counts=True)
+    full = counts >= min_gaps
+    if not full.any():
+        return RingProfile(np.array([np.median(lower + 0.5 * gap)]), np.array([np.median(gap)]), median)
+    spacing = np.array(
+        [np.median(spanned[order[a : a + n]]) for a, n in zip(starts[full], counts[full], strict=True)]
+    )
+    return RingProfile((bins[full] + 0.5) * bin_deg, spacing, median)
 
 
 def scan_lines(points_lidar: np.ndarray, min_lines: int = 8, backward_deg: float = 30.0) -> np.ndarray | None:

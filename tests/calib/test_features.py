@@ -6,6 +6,7 @@ from calib.features import (
     horizontal_gradient,
     level_laser_gains,
     ring_spacing_deg,
+    ring_spacing_profile,
     scan_lines,
 )
 
@@ -78,6 +79,23 @@ def test_ring_spacing_known_answers():
     assert ring_spacing_deg(_rings(0.4, 64)) == pytest.approx(0.4, abs=0.01)  # KITTI's HDL-64
     assert ring_spacing_deg(_rings(1.33, 32)) == pytest.approx(1.33, abs=0.01)  # nuScenes' HDL-32
     assert ring_spacing_deg(_rings(1.0, 1)) == 0.0
+
+
+def test_ring_spacing_profile_follows_uneven_rings():
+    """A Pandar64-like scan: rings 1° apart below -6° and 0.17° apart above; the profile reads each
+    spacing where it holds, and the median would read 0.17° everywhere."""
+    elevation = np.concatenate([-15 + 1.0 * np.arange(9), -6 + 0.167 * np.arange(48)])
+    azimuth, elevation = np.meshgrid(np.radians(np.arange(-180, 180, 0.2)), np.radians(elevation))
+    points = np.column_stack(
+        [10 * np.cos(azimuth).ravel(), 10 * np.sin(azimuth).ravel(), 10 * np.tan(elevation).ravel()]
+    )
+    rings = ring_spacing_profile(points)
+    np.testing.assert_allclose(
+        rings.at(np.array([-12.0, -9.0, -3.0, 1.0])), [1.0, 1.0, 0.167, 0.167], atol=0.01
+    )
+    assert ring_spacing_deg(points) == pytest.approx(0.167, abs=0.01)
+    assert len(ring_spacing_profile(_rings(1.0, 1)).elevation_deg) == 0
+    assert ring_spacing_profile(_rings(1.0, 1)).at(3.0) == 0.0
 
 
 def _striped_scan(gains: np.ndarray, azimuth_step_deg: float = 0.2) -> tuple[np.ndarray, np.ndarray]:

@@ -259,21 +259,32 @@ def test_lidar_field_has_no_parallax_halo():
     assert old[strip].max() > 0.5 * old[near].max()
 
 
-def test_sparse_rings_do_not_read_as_sky_between_them():
-    """A wall 10 m ahead seen by 32 rings 1.33° apart (nuScenes): the field inside it stays empty
-    (a fill radius of one KITTI ring spacing left sky between the rings, an edge on every ring)."""
-    azimuth, elevation = np.meshgrid(
-        np.radians(np.arange(-30, 30, 0.2)), np.radians(-15 + 1.33 * np.arange(20))
-    )
+def _wall_scan(elevations_deg: np.ndarray) -> np.ndarray:
+    """A wall 10 m ahead of the LiDAR seen by rings at ``elevations_deg``, 0.2° apart in azimuth."""
+    azimuth, elevation = np.meshgrid(np.radians(np.arange(-30, 30, 0.2)), np.radians(elevations_deg))
     d = np.stack(
         [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], -1
     )
     d = d.reshape(-1, 3)
-    points = np.column_stack([d * (10.0 / d[:, :1]), np.ones(len(d))]).astype(np.float32)
+    return np.column_stack([d * (10.0 / d[:, :1]), np.ones(len(d))]).astype(np.float32)
+
+
+@pytest.mark.parametrize(
+    "elevations",
+    [
+        -15 + 1.33 * np.arange(20),  # nuScenes' 32 rings, 1.33° apart
+        # a Pandar64 (the PJLab rig): 0.17° apart around the horizon, 1° below it (its median
+        # spacing, 0.17°, left sky between the outer rings)
+        np.concatenate([-15 + 1.0 * np.arange(9), -6 + 0.167 * np.arange(48)]),
+    ],
+)
+def test_sparse_rings_do_not_read_as_sky_between_them(elevations):
+    """A wall seen by rings far apart: the field inside it stays empty (a fill radius smaller than
+    the spacing left sky between the rings, an edge on every ring)."""
     T = np.eye(4)
     T[:3, :3] = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])
     K = np.array([[360.0, 0, 320], [0, 360, 100], [0, 0, 1]])
-    field, _ = lidar_field(points, T, K, (200, 640))
+    field, _ = lidar_field(_wall_scan(elevations), T, K, (200, 640))
     inside = np.abs(field[:, 45:160, 130:510]).sum(0)  # within the wall (u 112-528, v 35-196)
     assert inside.max() < 0.05
 
