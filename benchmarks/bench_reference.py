@@ -1,0 +1,190 @@
+"""Is a real fixture's reference extrinsic itself right? The matcher's answer, rotation only.
+
+Under a right reference the EdgeMatcher's residuals scatter around zero; under one that is turned
+they share a direction. For each fixture this matches every frame under the reference, fits the
+small rotation ``δR`` (``T' = δR · T_ref``, the translation held: one frame tells little of it) that
+takes the projected points onto their matches (Gauss–Newton on the linearised projection,
+Cauchy-weighted at 2 working px, as Stage 4's loss), then matches again under ``T'``, and again
+(``--rounds``) while the median residual measured anew falls: a correction that the data support
+lowers it, not only the fitted one. The matcher's own leans are in the answer too (KITTI raw:
+about 0.2° of roll from the intensity edges along its scan lines, see the README), so a
+correction counts as the reference's error only where the picture shows it.
+
+``--picture NAME --crop x0,y0,x1,y1`` also draws that image region (full-resolution pixels) with
+the LiDAR's returns coloured by intensity, under the reference (left) and under ``T'`` (right):
+painted road markings show the offset by eye (the default crop is a dashed lane line of pjlab-1).
+Prints a table and writes ``benchmarks/results/bench_reference.json`` (and the picture beside it).
+
+    .venv/bin/python benchmarks/bench_reference.py [--fixtures pjlab-1,pjlab-2,pjlab-3]
+        [--picture pjlab-1 --crop 450,840,780,1090]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # a benchmark shares its machine: timings comparable
+
+import cv2
+import numpy as np
+from results_io import RESULTS, save_results
+from rich.console import Console
+
+from calib.data import Frame, open_dataset
+from calib.data.real_fixtures import check_fixtures, realdata_root
+from calib.match.correspondences import Correspondences, match_frames
+from calib.match.edge_matcher import EdgeMatcher
+from calib.refine.passes import load_calibrate_config
+
+console = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def _camera_points(corr: Correspondences, T: np.ndarray) -> np.ndarray:
+    return np.asarray(corr.points_lidar, np.float64)[:, :3] @ T[:3, :3].T + T[:3, 3]
+
+
+def rotation_fit(matched: list[Correspondences], T: np.ndarray, K: np.ndarray, scale_px: float) -> np.ndarray:
+    """``(3,)`` rotation vector ``ω`` (camera frame, rad) of ``δR = exp([ω]×)`` minimising the
+    Cauchy loss (scale ``scale_px``) of ``residual − A ω`` over every correspondence, where
+    ``A = −J_π(p) [p]×`` is the projection's response to a small turn of the point ``p``."""
+    p = np.concatenate([_camera_points(c, T) for c in matched])
+    r = np.concatenate([c.residual for c in matched]).astype(np.float64)
+    x, y, z = p.T
+    J = np.zeros((len(p), 2, 3))  # ∂π/∂p
+    J[:, 0, 0], J[:, 0, 2] = K[0, 0] / z, -K[0, 0] * x / z**2
+    J[:, 1, 1], J[:, 1, 2] = K[1, 1] / z, -K[1, 1] * y / z**2
+    skew = np.zeros((len(p), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -z, y, -x
+    skew -= skew.transpose(0, 2, 1)
+    A = -J @ skew  # (N, 2, 3): d(uv)/dω for p' = p + ω × p
+    omega = np.zeros(3)
+    for _ in range(20):  # iteratively reweighted least squares
+        e = r - A @ omega
+        w = 1.0 / (1.0 + (e**2).sum(1) / scale_px**2)
+        H = np.einsum("n,nki,nkj->ij", w, A, A)
+        g = np.einsum("n,nki,nk->i", w, A, r)
+        step = np.linalg.solve(H, g) - omega
+        omega += step
+        if np.linalg.norm(step) < 1e-9:
+            break
+    return omega
+
+
+def turned(T: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """``δR · T`` with ``δR = exp([ω]×)``."""
+    R, _ = cv2.Rodrigues(omega)
+    out = np.array(T, np.float64)
+    out[:3] = R @ out[:3]
+    return out
+
+
+def _median(matched: list[Correspondences]) -> float:
+    return float(np.median(np.linalg.norm(np.concatenate([c.residual for c in matched]), axis=1)))
+
+
+def picture(frame: Frame, Ts: list[np.ndarray], crop: tuple[int, int, int, int], path: Path) -> None:
+    """Side by side, the crop with the scan's returns coloured by intensity under each of ``Ts``."""
+    x0, y0, x1, y1 = crop
+    panels = []
+    for T in Ts:
+        p = frame.points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        ahead = p[:, 2] > 0.5
+        uv = p[ahead, :2] / p[ahead, 2:] @ frame.K[:2, :2].T + frame.K[:2, 2]
+        intensity = frame.points[ahead, 3]
+        inside = (uv[:, 0] >= x0) & (uv[:, 0] < x1) & (uv[:, 1] >= y0) & (uv[:, 1] < y1)
+        level = np.clip(255 * intensity[inside] / max(np.percentile(intensity[inside], 98), 1e-6), 0, 255)
+        colours = cv2.applyColorMap(level.astype(np.uint8)[:, None], cv2.COLORMAP_HOT)[:, 0]
+        panel = cv2.resize(
+            cv2.cvtColor(frame.image[y0:y1, x0:x1], cv2.COLOR_RGB2BGR),
+            None,
+            fx=3,
+            fy=3,
+            interpolation=cv2.INTER_NEAREST,
+        )
+        for (u, v), c in zip(uv[inside], colours, strict=True):
+            cv2.circle(panel, (int((u - x0) * 3), int((v - y0) * 3)), 3, tuple(int(k) for k in c), -1)
+        panels.append(panel)
+    gap = np.full((panels[0].shape[0], 16, 3), 255, np.uint8)
+    cv2.imwrite(str(path), np.hstack([panels[0], gap, panels[1]]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--fixtures", default="pjlab-1,pjlab-2,pjlab-3", help="comma-separated; 'all' for every one"
+    )
+    parser.add_argument("--rounds", type=int, default=5, help="match-and-fit rounds at most")
+    parser.add_argument("--picture", default="pjlab-1", help="fixture to draw ('' for none)")
+    parser.add_argument("--crop", default="450,840,780,1090", help="x0,y0,x1,y1 in its first frame's pixels")
+    args = parser.parse_args()
+    root = realdata_root()
+    if root is None:
+        raise SystemExit("real fixtures absent (../shared/realdata, SUPPORTNET_REALDATA)")
+    config = load_calibrate_config().edge
+    matcher = EdgeMatcher(config)
+    clock = time.perf_counter()
+    rows = []
+    with tempfile.TemporaryDirectory() as work:
+        fixtures = check_fixtures(root, Path(work))
+        wanted = None if args.fixtures == "all" else set(args.fixtures.split(","))
+        for fixture in fixtures:
+            if wanted is not None and fixture.name not in wanted:
+                continue
+            with open_dataset(fixture.path, camera=fixture.camera) as seq:
+                frames = [seq[i] for i in range(len(seq))]
+            T_ref, K = frames[0].calibration.T_cam_lidar, frames[0].K
+            scale_px = 2.0 * K[0, 0] / min(K[0, 0], config.working_focal_px)
+            before = after = match_frames(matcher, frames, T_ref)
+            T_fit, rounds = T_ref, 0
+            while rounds < args.rounds:  # match, fit, and again while the median falls
+                T_next = turned(T_fit, rotation_fit(after, T_fit, K, scale_px))
+                matched = match_frames(matcher, frames, T_next)
+                if _median(matched) >= _median(after):
+                    break
+                T_fit, after, rounds = T_next, matched, rounds + 1
+            omega = cv2.Rodrigues(T_fit[:3, :3] @ T_ref[:3, :3].T)[0].ravel()
+            row = {
+                "dataset": fixture.name,
+                "frames": len(frames),
+                "correspondences": int(sum(len(c) for c in before)),
+                "correction_deg_xyz": np.degrees(omega).round(3).tolist(),
+                "correction_deg": round(float(np.degrees(np.linalg.norm(omega))), 3),
+                "median_px_reference": round(_median(before), 2),
+                "median_px_corrected": round(_median(after), 2),
+                "correspondences_corrected": int(sum(len(c) for c in after)),
+                "rounds": rounds,  # accepted: each lowered the median residual
+            }
+            rows.append(row)
+            console.print(
+                f"{fixture.name}: {row['correction_deg']:.3f}° in {time.perf_counter() - clock:.0f} s"
+            )
+            if fixture.name == args.picture:
+                path = RESULTS / f"bench_reference_{fixture.name}.png"
+                path.parent.mkdir(parents=True, exist_ok=True)
+                picture(frames[0], [T_ref, T_fit], tuple(int(v) for v in args.crop.split(",")), path)
+                row["picture"] = str(path)
+    print(
+        f"{'dataset':24} {'corr':>6} {'δR x / y / z (°, camera)':>26} {'|δR| °':>7} "
+        f"{'ref px':>7} {'δR px':>7} rounds"
+    )
+    for r in rows:
+        xyz = " / ".join(f"{v:+.3f}" for v in r["correction_deg_xyz"])
+        print(
+            f"{r['dataset']:24} {r['correspondences']:6d} {xyz:>26} {r['correction_deg']:7.3f} "
+            f"{r['median_px_reference']:7.2f} {r['median_px_corrected']:7.2f} {r['rounds']:6d}"
+        )
+    print("δR: the rotation the matcher's residuals under the reference ask for (translation held);")
+    print("ref px / δR px: median residual matched under the reference / under δR · reference")
+    save_results(
+        "bench_reference",
+        {"rows": rows, "machine": platform.machine(), "seconds": round(time.perf_counter() - clock, 1)},
+    )
+
+
+if __name__ == "__main__":
+    main()
