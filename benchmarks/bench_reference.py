@@ -32,6 +32,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # a benchmark shares its machine:
 
 import cv2
 import numpy as np
+import torch
 from results_io import RESULTS, save_results
 from rich.console import Console
 
@@ -39,7 +40,9 @@ from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import check_fixtures, realdata_root
 from calib.match.correspondences import Correspondences, match_frames
 from calib.match.edge_matcher import EdgeMatcher
+from calib.projection import project_points, transform_points
 from calib.refine.passes import load_calibrate_config
+from calib.refine.solver import reprojection_jacobian, robust_weight
 
 console = Console(stderr=True, highlight=False, soft_wrap=True)
 
@@ -51,28 +54,22 @@ def _camera_points(corr: Correspondences, T: np.ndarray) -> np.ndarray:
 def rotation_fit(matched: list[Correspondences], T: np.ndarray, K: np.ndarray, scale_px: float) -> np.ndarray:
     """``(3,)`` rotation vector ``ω`` (camera frame, rad) of ``δR = exp([ω]×)`` minimising the
     Cauchy loss (scale ``scale_px``) of ``residual − A ω`` over every correspondence, where
-    ``A = −J_π(p) [p]×`` is the projection's response to a small turn of the point ``p``."""
-    p = np.concatenate([_camera_points(c, T) for c in matched])
-    r = np.concatenate([c.residual for c in matched]).astype(np.float64)
-    x, y, z = p.T
-    J = np.zeros((len(p), 2, 3))  # ∂π/∂p
-    J[:, 0, 0], J[:, 0, 2] = K[0, 0] / z, -K[0, 0] * x / z**2
-    J[:, 1, 1], J[:, 1, 2] = K[1, 1] / z, -K[1, 1] * y / z**2
-    skew = np.zeros((len(p), 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -z, y, -x
-    skew -= skew.transpose(0, 2, 1)
-    A = -J @ skew  # (N, 2, 3): d(uv)/dω for p' = p + ω × p
-    omega = np.zeros(3)
+    ``A`` is the rotation part of Stage 4's :func:`~calib.refine.solver.reprojection_jacobian`
+    (the projection's response to a small turn of each point in the camera frame)."""
+    q = torch.as_tensor(np.concatenate([_camera_points(c, T) for c in matched]))
+    r = torch.as_tensor(np.concatenate([c.residual for c in matched]), dtype=torch.float64)
+    A = reprojection_jacobian(q, K)[..., 3:]  # (N, 2, 3): d(uv)/dω for exp(ω) · q
+    omega = torch.zeros(3, dtype=torch.float64)
     for _ in range(20):  # iteratively reweighted least squares
         e = r - A @ omega
-        w = 1.0 / (1.0 + (e**2).sum(1) / scale_px**2)
-        H = np.einsum("n,nki,nkj->ij", w, A, A)
-        g = np.einsum("n,nki,nk->i", w, A, r)
-        step = np.linalg.solve(H, g) - omega
+        _, w = robust_weight((e**2).sum(1), "cauchy", scale_px)
+        H = torch.einsum("n,nki,nkj->ij", w, A, A)
+        g = torch.einsum("n,nki,nk->i", w, A, r)
+        step = torch.linalg.solve(H, g) - omega
         omega += step
-        if np.linalg.norm(step) < 1e-9:
+        if torch.linalg.norm(step) < 1e-9:
             break
-    return omega
+    return omega.numpy()
 
 
 def turned(T: np.ndarray, omega: np.ndarray) -> np.ndarray:
@@ -92,10 +89,12 @@ def picture(frame: Frame, Ts: list[np.ndarray], crop: tuple[int, int, int, int],
     x0, y0, x1, y1 = crop
     panels = []
     for T in Ts:
-        p = frame.points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-        ahead = p[:, 2] > 0.5
-        uv = p[ahead, :2] / p[ahead, 2:] @ frame.K[:2, :2].T + frame.K[:2, 2]
-        intensity = frame.points[ahead, 3]
+        uv, depth = project_points(
+            transform_points(torch.as_tensor(T), torch.as_tensor(frame.points[:, :3], dtype=torch.float64)),
+            torch.as_tensor(frame.K),
+        )
+        ahead = (depth > 0.5).numpy()
+        uv, intensity = uv.numpy()[ahead], frame.points[ahead, 3]
         inside = (uv[:, 0] >= x0) & (uv[:, 0] < x1) & (uv[:, 1] >= y0) & (uv[:, 1] < y1)
         level = np.clip(255 * intensity[inside] / max(np.percentile(intensity[inside], 98), 1e-6), 0, 255)
         colours = cv2.applyColorMap(level.astype(np.uint8)[:, None], cv2.COLORMAP_HOT)[:, 0]

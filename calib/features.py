@@ -96,6 +96,12 @@ def _ring_gaps(
     return gap[between], e[:-1][between]
 
 
+def _median_spacing(gap: np.ndarray) -> float:
+    """Median of the ring gaps ``gap`` under 3° (a wider one is a missing return), 0 for none."""
+    gap = gap[gap < 3.0]
+    return float(np.median(gap)) if len(gap) else 0.0
+
+
 def ring_spacing_deg(points_lidar: np.ndarray, column_deg: float = 0.4, same_ring_deg: float = 0.1) -> float:
     """Median elevation gap between vertically neighbouring rings of a spinning LiDAR's scan, in
     degrees (KITTI's HDL-64: 0.4; nuScenes' 32 rings: 1.33), 0 for fewer than two rings.
@@ -103,7 +109,7 @@ def ring_spacing_deg(points_lidar: np.ndarray, column_deg: float = 0.4, same_rin
     Within each azimuth column ``column_deg`` wide, elevations closer than ``same_ring_deg`` count
     as one ring; gaps over 3° (a missing return) are left out.
     """
-    return ring_spacing_profile(points_lidar, column_deg, same_ring_deg).median_deg
+    return _median_spacing(_ring_gaps(points_lidar, column_deg, same_ring_deg)[0])
 
 
 @dataclass(frozen=True)
@@ -145,7 +151,7 @@ def ring_spacing_profile(
     median of each bin that at least ``min_gaps`` span (a missing return doubles a gap now and
     then). A bin where dense rings end and sparse ones begin reads the sparse gap it lies in."""
     gap, lower = _ring_gaps(points_lidar, column_deg, same_ring_deg)
-    median = float(np.median(gap[gap < 3.0])) if (gap < 3.0).any() else 0.0  # as ring_spacing_deg
+    median = _median_spacing(gap)
     keep = gap < max_gap_deg
     gap, lower = gap[keep], lower[keep]
     if len(gap) == 0:

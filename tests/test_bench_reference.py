@@ -7,19 +7,23 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import bench_reference  # noqa: E402
 
 from calib.match.correspondences import Correspondences  # noqa: E402
+from calib.projection import project_points, transform_points  # noqa: E402
 
 K = np.array([[720.0, 0, 620], [0, 720, 190], [0, 0, 1]])
 
 
 def _project(points_lidar: np.ndarray, T: np.ndarray) -> np.ndarray:
-    p = points_lidar @ T[:3, :3].T + T[:3, 3]
-    return p[:, :2] / p[:, 2:] @ K[:2, :2].T + K[:2, 2]
+    uv, _ = project_points(
+        transform_points(torch.as_tensor(T), torch.as_tensor(points_lidar)), torch.as_tensor(K)
+    )
+    return uv.numpy()
 
 
 @pytest.mark.parametrize("outliers", [0.0, 0.2])
