@@ -31,12 +31,13 @@ from results_io import save_results
 from rich.console import Console
 
 from calib.data import open_dataset
+from calib.data.classes import RIGID_CLASSES
 from calib.data.real_fixtures import kitti_object_from_mmdet, realdata_root
 from calib.geometry import perturb
 from calib.match.edge_matcher import EdgeMatcher
 from calib.projection import project_points, transform_points
 from calib.refine.passes import load_calibrate_config
-from calib.synth.generate import RIGID_CLASSES, Synthesizer, write_sequence
+from calib.synth.generate import Synthesizer, write_sequence
 from calib.synth.synth_config import load_synth_config
 from supportnet.cli.cmd_calibrate import paired_wins, run_calibrate
 from supportnet.runtime.flow_matcher import SHIPPED_FLOW_MODEL, FlowMatcher

@@ -19,9 +19,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from calib.data.classes import RIGID_CLASSES
 from calib.data.label_agreement import sequence_label_agreement
 from calib.init.lidar_odometry import drift, lidar_odometry
-from calib.synth.generate import RIGID_CLASSES, Synthesizer, write_sequence
+from calib.synth.generate import Synthesizer, write_sequence
 from calib.synth.synth_config import load_synth_config
 
 WORLDS = ("vineyard", "urban")

@@ -35,7 +35,7 @@ from train.support_data import SupportDataModule
 from train.support_module import SupportModule
 from train.train_config import FlowTrainConfig, TrainConfig, TrainerConfig
 
-__all__ = ["run_train", "run_train_flow"]
+__all__ = ["hardware", "run_train", "run_train_flow"]
 
 QUIET = (
     r".*overridden `on_after_batch_transfer`.*",  # intended: augmentation runs on the batch
@@ -112,6 +112,7 @@ def _fit(
     L.seed_everything(config.seed, workers=True, verbose=False)
     if config.trainer.threads:
         torch.set_num_threads(config.trainer.threads)
+    torch.set_float32_matmul_precision("high")  # TF32 on a GPU that has it; no effect on a CPU
     data.setup()
     console.print(
         f"training on {len(data.train)} frames, validating on {len(data.val)} held-out frames",
@@ -138,6 +139,7 @@ def _fit(
         "val_frames": len(data.val),
         "epochs": trainer.current_epoch,
         "minutes": minutes,
+        "hardware": hardware(trainer),
         key: float(best.best_model_score) if best.best_model_score is not None else None,
         "final": {k: float(v) for k, v in trainer.callback_metrics.items()},
         "best_checkpoint": str(out / "checkpoints" / "best.ckpt") if best.best_model_path else None,
@@ -159,6 +161,14 @@ def _fit(
         highlight=False,
     )
     return summary
+
+
+def hardware(trainer: L.Trainer) -> str:
+    """What trained it: the GPUs Lightning used, else the CPU's cores."""
+    cores = f"{os.cpu_count()} CPU cores"
+    if trainer.strategy.root_device.type == "cuda":
+        return f"{trainer.num_devices}x {torch.cuda.get_device_name(trainer.strategy.root_device)}, {cores}"
+    return f"CPU only, {cores}, {torch.get_num_threads()} torch threads"
 
 
 def _trainer(t: TrainerConfig, root: Path, callbacks: list) -> L.Trainer:

@@ -10,7 +10,9 @@ crop; validation uses whole frames with fixed draws.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
+import cv2
 import lightning as L
 import numpy as np
 import torch
@@ -18,6 +20,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from calib.data import open_dataset
 from calib.errors import DataError
+from calib.features import RingProfile, ring_spacing_profile
 from calib.geometry import perturb
 from calib.match.correspondences import working_view
 from calib.projection import project_points, project_scan, render_image, transform_points
@@ -25,22 +28,41 @@ from supportnet.runtime.flow_matcher import VISIBILITY, lidar_image
 from train.loaders import loader
 from train.train_config import FlowDataConfig, SequenceSource
 
-__all__ = ["FlowDataModule", "ScanFrames", "curriculum_bound", "flow_sample", "load_scans"]
+__all__ = [
+    "FlowDataModule",
+    "ScanFrames",
+    "curriculum_bound",
+    "flow_sample",
+    "load_scans",
+    "read_frames",
+    "write_frames",
+]
+
+PACK_STEP_M = 0.004
+"""Point coordinates in a frame pack are multiples of 4 mm (int16: within 131 m of the LiDAR);
+2 mm at most moves a point 5 m away by 0.15 px at the working focal length."""
+FOV_MARGIN = 0.35
+"""Points are kept where the reference projects them within this many focal lengths of the image
+(about 19°): a 10° / 50 cm error moves no point from farther out into the image, save nearer than
+1.5 m."""
 
 
 @dataclass(frozen=True)
 class ScanFrames:
-    """Calibrated frames at the working resolution.
+    """Calibrated frames at the working resolution (sizes may differ between frames).
 
     Attributes:
-        images: ``(N, H, W, 3)`` uint8 RGB. points: ``N`` scans ``(M, 4)`` float32.
+        images: ``N`` uint8 RGB ``(H, W, 3)``. points: ``N`` scans ``(M, 4)`` float32, the points
+            the camera can see under an extrinsic error (:data:`FOV_MARGIN`).
         labels: ``N`` per-point classes ``(M,)`` (``-1`` where the data has none).
+        rings: ``N`` :class:`~calib.features.RingProfile` of each whole scan.
         K: ``(N, 3, 3)`` working intrinsics. T: ``(N, 4, 4)`` reference ``T_cam_lidar``.
     """
 
-    images: np.ndarray
+    images: list[np.ndarray]
     points: list[np.ndarray]
     labels: list[np.ndarray]
+    rings: list[RingProfile]
     K: np.ndarray
     T: np.ndarray
 
@@ -48,34 +70,107 @@ class ScanFrames:
         return len(self.images)
 
 
+def _in_view(points: np.ndarray, T_cam_lidar: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``(M,)`` bool: in front of the camera and projected within :data:`FOV_MARGIN` of the image."""
+    xyz = points[:, :3] @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]
+    z = xyz[:, 2]
+    ahead = z > 0.1
+    uv = (xyz[:, :2] @ K[:2, :2].T + K[:2, 2] * z[:, None]) / np.where(ahead, z, 1.0)[:, None]
+    margin = FOV_MARGIN * K[0, 0]
+    H, W = size
+    return ahead & (uv >= -margin).all(1) & (uv[:, 0] <= W + margin) & (uv[:, 1] <= H + margin)
+
+
 def load_scans(source: SequenceSource, stride: int, focal_px: float) -> ScanFrames:
     """Every ``stride``-th frame of one sequence, which must carry a reference calibration."""
-    images, points, labels, Ks, Ts = [], [], [], [], []
+    images, points, labels, rings, Ks, Ts = [], [], [], [], [], []
     with open_dataset(source.data, sequence=source.sequence, camera=source.camera) as seq:
         if seq.calibration.T_cam_lidar is None:
             raise DataError(source.data, "has no reference calibration to learn the flow from")
         for i in range(0, len(seq), stride):
             frame = seq[i]
             view = working_view(frame, focal_px)
+            scan = np.asarray(frame.points, np.float32)
+            label = np.asarray(frame.labels) if frame.labels is not None else np.full(len(scan), -1)
+            keep = _in_view(scan, frame.calibration.T_cam_lidar, view.K, view.image.shape[:2])
             images.append(view.image)
-            points.append(np.asarray(frame.points, np.float32))
-            n = len(frame.points)
-            labels.append(np.asarray(frame.labels) if frame.labels is not None else np.full(n, -1))
+            points.append(scan[keep])
+            labels.append(label[keep].astype(np.int16))
+            rings.append(ring_spacing_profile(scan))
             Ks.append(view.K)
             Ts.append(frame.calibration.T_cam_lidar)
-    return ScanFrames(np.stack(images), points, labels, np.stack(Ks), np.stack(Ts))
+    return ScanFrames(images, points, labels, rings, np.stack(Ks), np.stack(Ts))
 
 
 def _concat(parts: list[ScanFrames]) -> ScanFrames:
-    if len({p.images.shape[1:3] for p in parts}) > 1:
-        raise DataError("data.sources", "one split mixes image sizes; use one working_focal_px camera")
     return ScanFrames(
-        np.concatenate([p.images for p in parts]),
-        [s for p in parts for s in p.points],
-        [s for p in parts for s in p.labels],
+        [x for p in parts for x in p.images],
+        [x for p in parts for x in p.points],
+        [x for p in parts for x in p.labels],
+        [x for p in parts for x in p.rings],
         np.concatenate([p.K for p in parts]),
         np.concatenate([p.T for p in parts]),
     )
+
+
+def _joined(arrays: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Arrays of different lengths as one array and the offsets between them."""
+    return np.concatenate(arrays), np.cumsum([0] + [len(a) for a in arrays])
+
+
+def _split(joined: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:
+    return [joined[a:b] for a, b in zip(offsets[:-1], offsets[1:], strict=True)]
+
+
+def write_frames(frames: ScanFrames, path: Path, quality: int = 95) -> None:
+    """``frames`` as one compact ``.npz``: JPEG images, the points a camera can see on a 4 mm grid
+    (:data:`PACK_STEP_M`) with float16 intensities, ring profiles. A synthetic 64-beam frame takes
+    about 0.2 MB instead of 3 (:func:`read_frames` reads it back)."""
+    jpegs = [
+        np.frombuffer(cv2.imencode(".jpg", im[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])[1], np.uint8)
+        for im in frames.images
+    ]
+    arrays = {"K": frames.K, "T": frames.T, "ring_median": np.array([r.median_deg for r in frames.rings])}
+    limit = np.iinfo(np.int16).max * PACK_STEP_M
+    kept = [(np.abs(p[:, :3]) < limit).all(1) for p in frames.points]
+    points = [p[k] for p, k in zip(frames.points, kept, strict=True)]
+    for name, parts in (
+        ("jpeg", jpegs),
+        ("xyz", [np.round(p[:, :3] / PACK_STEP_M).astype(np.int16) for p in points]),
+        ("intensity", [p[:, 3].astype(np.float16) for p in points]),
+        ("labels", [label[k] for label, k in zip(frames.labels, kept, strict=True)]),
+        ("ring_elevation", [r.elevation_deg for r in frames.rings]),
+        ("ring_spacing", [r.spacing_deg for r in frames.rings]),
+    ):
+        arrays[name], arrays[name + "_offsets"] = _joined(parts)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_suffix(".partial"), "wb") as f:
+        np.savez_compressed(f, **arrays)
+    path.with_suffix(".partial").replace(path)
+
+
+def read_frames(path: Path) -> ScanFrames:
+    """The frames :func:`write_frames` stored in ``path``."""
+    try:
+        with np.load(path) as z:
+            parts = {
+                k[: -len("_offsets")]: _split(z[k[: -len("_offsets")]], z[k])
+                for k in z.files
+                if k.endswith("_offsets")
+            }
+            K, T, medians = z["K"], z["T"], z["ring_median"]
+    except (OSError, ValueError, KeyError) as error:
+        raise DataError(path, f"is not a frame pack written by write_frames ({error})") from None
+    images = [cv2.imdecode(j, cv2.IMREAD_COLOR)[..., ::-1].copy() for j in parts["jpeg"]]
+    rings = [
+        RingProfile(e, s, float(m))
+        for e, s, m in zip(parts["ring_elevation"], parts["ring_spacing"], medians, strict=True)
+    ]
+    points = [
+        np.column_stack([xyz * np.float32(PACK_STEP_M), i.astype(np.float32)])
+        for xyz, i in zip(parts["xyz"], parts["intensity"], strict=True)
+    ]
+    return ScanFrames(images, points, parts["labels"], rings, K, T)
 
 
 def flow_sample(frames: ScanFrames, i: int, T_init: np.ndarray, near_m: float) -> dict[str, torch.Tensor]:
@@ -89,7 +184,7 @@ def flow_sample(frames: ScanFrames, i: int, T_init: np.ndarray, near_m: float) -
     image, K = frames.images[i], frames.K[i]
     size = image.shape[:2]
     scan = project_scan(frames.points[i], T_init, K, size, VISIBILITY)
-    lidar = torch.from_numpy(lidar_image(scan, frames.points[i], T_init, K, near_m))
+    lidar = torch.from_numpy(lidar_image(scan, frames.points[i], T_init, K, near_m, frames.rings[i]))
     points = torch.from_numpy(frames.points[i][scan.index, :3].astype(np.float64))
     uv_true, _ = project_points(transform_points(torch.from_numpy(frames.T[i]), points), torch.from_numpy(K))
     uv, depth = torch.from_numpy(scan.uv), torch.from_numpy(scan.depth)
@@ -110,37 +205,44 @@ def flow_sample(frames: ScanFrames, i: int, T_init: np.ndarray, near_m: float) -
     }
 
 
-def curriculum_bound(config: FlowDataConfig, epoch: int, epochs: int) -> tuple[float, float]:
-    """The largest error (cm, °) drawn in ``epoch`` of ``epochs``: geometric from start to end."""
+def curriculum_bound(config: FlowDataConfig, progress: float) -> tuple[float, float]:
+    """The largest error (cm, °) drawn at ``progress`` ∈ [0, 1] of the run: geometric from
+    ``perturbation.start`` to ``perturbation.end``."""
     start, end = np.array(config.perturbation.start), np.array(config.perturbation.end)
-    t = epoch / max(epochs - 1, 1)
-    return tuple(float(v) for v in start * (end / np.maximum(start, 1e-9)) ** min(t, 1.0))
+    t = min(max(progress, 0.0), 1.0)
+    return tuple(float(v) for v in start * (end / np.maximum(start, 1e-9)) ** t)
 
 
 class _Perturbed(Dataset):
-    """``length`` random crops of random frames, each under a new random error up to ``bound``."""
+    """``length`` random crops of random frames, each under a new random error up to ``bound``
+    (a shared tensor, so loader workers that outlive an epoch see the curriculum move)."""
 
     def __init__(self, frames: ScanFrames, config: FlowDataConfig) -> None:
         self.frames, self.config = frames, config
-        self.bound = config.perturbation.start
+        self.bound = torch.tensor(config.perturbation.start, dtype=torch.float64).share_memory_()
 
     def __len__(self) -> int:
         return self.config.samples_per_epoch
 
     def __getitem__(self, _: int) -> dict[str, torch.Tensor]:
         i = int(torch.randint(len(self.frames), ()))
-        cm, deg = (float(torch.rand(())) * b for b in self.bound)
+        cm, deg = (float(torch.rand(())) * float(b) for b in self.bound)
         generator = torch.Generator().manual_seed(int(torch.randint(2**31, ())))
         sample = flow_sample(
             self.frames, i, perturb(self.frames.T[i], cm, deg, generator), self.config.near_m
         )
-        (H, W), (h, w) = self.frames.images.shape[1:3], self.config.crop
+        (H, W), (h, w) = self.frames.images[i].shape[:2], self.config.crop
         r, c = int(torch.randint(H - h + 1, ())), int(torch.randint(W - w + 1, ()))
         return {k: v[:, r : r + h, c : c + w] for k, v in sample.items()}
 
 
 class FlowDataModule(L.LightningDataModule):
-    """Perturbed training crops and fixed-error whole validation frames, split by sequence."""
+    """Perturbed training crops and fixed-error whole validation frames, split by sequence.
+
+    With ``data.cache`` set, the frames are read from ``train.npz`` and ``val.npz`` there
+    (:func:`write_frames`) where they exist, and written there after loading them otherwise: a
+    GPU machine then needs the packs alone, not the datasets.
+    """
 
     def __init__(self, config: FlowDataConfig) -> None:
         super().__init__()
@@ -149,20 +251,32 @@ class FlowDataModule(L.LightningDataModule):
         self.val: list[dict[str, torch.Tensor]] | None = None
         self._crops: _Perturbed | None = None
 
+    def _split(self, split: str) -> ScanFrames:
+        pack = self.config.cache / f"{split}.npz" if self.config.cache is not None else None
+        if pack is not None and pack.is_file():
+            return read_frames(pack)
+        stride = self.config.frame_stride if split == "train" else self.config.val_frame_stride
+        parts = [
+            load_scans(s, stride, self.config.working_focal_px)
+            for s in self.config.sources
+            if s.split == split
+        ]
+        if not parts:
+            raise DataError("data.sources", f"no sequence has split: {split}")
+        frames = _concat(parts)
+        if pack is not None:
+            write_frames(frames, pack)
+        return frames
+
     def setup(self, stage: str | None = None) -> None:
         if self.train is not None:
             return
-        splits: dict[str, list[ScanFrames]] = {"train": [], "val": []}
-        for source in self.config.sources:
-            stride = self.config.frame_stride if source.split == "train" else self.config.val_frame_stride
-            splits[source.split].append(load_scans(source, stride, self.config.working_focal_px))
-        for name, parts in splits.items():
-            if not parts:
-                raise DataError("data.sources", f"no sequence has split: {name}")
-        train, val = _concat(splits["train"]), _concat(splits["val"])
-        H, W = train.images.shape[1:3]
-        if self.config.crop[0] > H or self.config.crop[1] > W:
-            raise DataError("data.crop", f"{self.config.crop} is larger than the images ({H}, {W})")
+        train, val = self._split("train"), self._split("val")
+        smallest = tuple(min(im.shape[k] for im in train.images) for k in (0, 1))
+        if self.config.crop[0] > smallest[0] or self.config.crop[1] > smallest[1]:
+            raise DataError(
+                "data.crop", f"{self.config.crop} is larger than the smallest image size {smallest}"
+            )
         self.train, self._crops = train, _Perturbed(train, self.config)
         cm, deg = self.config.perturbation.val
         self.val = [  # fixed draws: the same errors every epoch and every run
@@ -172,12 +286,12 @@ class FlowDataModule(L.LightningDataModule):
             for i in range(len(val))
         ]
 
-    def set_epoch(self, epoch: int, epochs: int) -> None:
-        """Moves the curriculum: this epoch's largest training error."""
-        self._crops.bound = curriculum_bound(self.config, epoch, epochs)
+    def set_progress(self, progress: float) -> None:
+        """Moves the curriculum: the largest training error from here on."""
+        self._crops.bound.copy_(torch.tensor(curriculum_bound(self.config, progress)))
 
     def train_dataloader(self) -> DataLoader:
         return loader(self._crops, self.config.batch_size, self.config.workers)
 
     def val_dataloader(self) -> DataLoader:
-        return loader(self.val, 1, self.config.workers)
+        return loader(self.val, 1, 0)  # drawn once in setup: nothing for workers to do

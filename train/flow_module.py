@@ -12,9 +12,9 @@ import lightning as L
 import numpy as np
 import torch
 
-from calib.synth.generate import RIGID_CLASSES
+from calib.data.classes import RIGID_CLASSES
 from supportnet.nets.flow_net import LIDAR_CHANNELS, FlowConfig, FlowNet
-from train.support_module import one_cycle, photometric
+from train.support_module import one_cycle, photometric, run_progress
 from train.train_config import FlowAugmentConfig, OptimConfig
 
 __all__ = ["FOLIAGE_CLASSES", "FlowModule", "sequence_loss"]
@@ -68,7 +68,7 @@ class FlowModule(L.LightningModule):
         return self.net((image - self.mean) / self.std, lidar, all_iterations)
 
     def on_train_epoch_start(self) -> None:
-        self.trainer.datamodule.set_epoch(self.current_epoch, self.trainer.max_epochs)
+        self.trainer.datamodule.set_progress(run_progress(self.trainer))
 
     def on_after_batch_transfer(self, batch: dict, dataloader_idx: int) -> dict:
         if not self.training:

@@ -3,17 +3,21 @@ seeds (``python -m train.recipe support`` and ``... flow``).
 
 The support predictor:
 
-1. Synthetic sequences: three of each world to train on, one of each held out (seed 9), at the
-   small 624x188 size (``supportnet synth --small``) the shipped models were trained on.
+1. Synthetic sequences: those ``configs/train.yaml`` names (three of each world to train on, one
+   of each held out, each sequence named by its seed), at the small 624x188 size (``supportnet
+   synth --small``) the shipped models were trained on.
 2. Offline support maps of each (Stage 3 under the reference calibration).
 3. Training with ``configs/train.yaml`` (its sources are the folders written here).
 4. Export to ONNX (checked) as ``supportnet/assets/support_unet.onnx``.
 5. Scores of the exported model on the held-out sequences against their offline maps, written
    with the training summary as the model card ``support_unet.json`` beside it.
 
-The flow matcher: the same synthetic sequences (no maps needed), trained with
-``configs/train_flow.yaml``, exported as ``supportnet/assets/flow_matcher.onnx`` with its card
-``flow_matcher.json`` (held-out endpoint errors by class).
+The flow matcher: full-resolution synthetic sequences, 16 seeds of each world (no maps needed),
+packed into frame packs (``train.flow_data.write_frames``), trained with
+``configs/train_flow.yaml`` (sized for one GPU; on a CPU it stops at its time limit), exported as
+``supportnet/assets/flow_matcher.onnx`` with its card ``flow_matcher.json`` (held-out endpoint
+errors by class). Where the packs exist, nothing is synthesised: a GPU machine needs the packs
+alone.
 
 Steps whose output exists are skipped, so an interrupted run continues where it stopped.
 """
@@ -21,7 +25,6 @@ Steps whose output exists are skipped, so an interrupted run continues where it 
 from __future__ import annotations
 
 import json
-import os
 import platform
 import time
 from collections.abc import Callable
@@ -45,20 +48,25 @@ from train.train_config import FlowTrainConfig, TrainConfig, load_train_config
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
 
-ROOT = Path("build/model")
-SEQUENCES = {"01": 1, "02": 2, "03": 3, "09": 9}
-"""Sequence name → world seed; ``09`` is held out (``configs/train.yaml`` lists the splits)."""
 
-
-def _synthesise(frames: int, console: Console, maps: bool) -> None:
-    """The synthetic sequences (and their offline maps), each skipped when it exists."""
-    for world in ("vineyard", "urban"):
-        for sequence, seed in SEQUENCES.items():
-            if not (ROOT / world / "sequences" / sequence).is_dir():
-                run_synth(world, frames, seed, ROOT / world, sequence, console=console, small=True)
-            folder = ROOT / "maps" / f"{world}_{sequence}"
-            if maps and not folder.is_dir():
-                run_maps(ROOT / world, sequence, folder, load_maps_config(), resume=True, console=console)
+def _synthesise(sources: list, frames: int, console: Console, small: bool) -> None:
+    """Every source of a training config, each skipped when it exists: the synthetic world named
+    by its folder (``build/model/urban``) with the seed its sequence names, and its offline support
+    maps where the source has a ``maps`` folder."""
+    for source in sources:
+        world, seed = Path(source.data).name, int(source.sequence)
+        if not (Path(source.data) / "sequences" / source.sequence).is_dir():
+            run_synth(world, frames, seed, Path(source.data), source.sequence, console=console, small=small)
+        maps = getattr(source, "maps", None)
+        if maps is not None and not Path(maps).is_dir():
+            run_maps(
+                Path(source.data),
+                source.sequence,
+                Path(maps),
+                load_maps_config(),
+                resume=True,
+                console=console,
+            )
 
 
 def _trained(config: TrainConfig | FlowTrainConfig, run: Callable[..., dict], console: Console) -> dict:
@@ -67,16 +75,6 @@ def _trained(config: TrainConfig | FlowTrainConfig, run: Callable[..., dict], co
     if summary_path.is_file():
         return json.loads(summary_path.read_text())
     return run(config, overwrite=True, console=console)
-
-
-def _hardware(config: TrainConfig | FlowTrainConfig) -> str:
-    """What trained it: the GPU where Lightning's accelerator took one, else the CPU's cores."""
-    import torch
-
-    cores = f"{os.cpu_count()} CPU cores"
-    if config.trainer.accelerator in ("auto", "gpu", "cuda") and torch.cuda.is_available():
-        return f"{torch.cuda.device_count()}x {torch.cuda.get_device_name(0)}, {cores}"
-    return f"CPU only, {cores}, {torch.get_num_threads()} torch threads"
 
 
 def _card(
@@ -98,7 +96,7 @@ def _card(
         "frames_per_sequence": frames,
         "training": {k: summary[k] for k in ("train_frames", "val_frames", "epochs", "minutes", best)},
         "machine": f"{platform.machine()} {platform.system()}, python {platform.python_version()}",
-        "hardware": _hardware(config),
+        "hardware": summary.get("hardware", "not recorded"),
         "recipe_minutes": (time.perf_counter() - start) / 60,
     }
 
@@ -114,15 +112,21 @@ def make_model(
     """The support predictor."""
     console = make_console()
     start = time.perf_counter()
-    _synthesise(frames, console, maps=True)
     train_config = load_train_config(config)
+    _synthesise(train_config.data.sources, frames, console, small=True)
     summary = _trained(train_config, run_train, console)
     report = export_onnx(Path(summary["best_checkpoint"]), out, overwrite=True)
     held_out = {}
     for source in (s for s in train_config.data.sources if s.split == "val"):
         name = f"{Path(source.data).name}_{source.sequence}"
         scores = run_predict(
-            out, source.data, source.sequence, ROOT / "predicted" / name, source.maps, True, console
+            out,
+            source.data,
+            source.sequence,
+            Path("build/model/predicted") / name,
+            source.maps,
+            True,
+            console,
         )
         held_out[name] = {k: scores[k] for k in ("per_frame", "sequence_map")}
     card = _card(out, report, train_config, frames, summary, "best_val_pearson", start)
@@ -131,9 +135,33 @@ def make_model(
     console.print(json.dumps(card["held_out_scores"], indent=1), markup=False, highlight=False)
 
 
+def _flow_data(config: Path, frames: int, console: Console) -> FlowTrainConfig:
+    """The flow config, its synthetic sequences written and packed (skipped where packs exist)."""
+    from train.flow_data import FlowDataModule
+
+    train_config = load_train_config(config, [], FlowTrainConfig)
+    cache = train_config.data.cache
+    if cache is None or not all((cache / f"{split}.npz").is_file() for split in ("train", "val")):
+        _synthesise(train_config.data.sources, frames, console, small=False)
+        FlowDataModule(train_config.data).setup()  # writes the packs where data.cache is set
+    return train_config
+
+
+@app.command("flow-data")
+def make_flow_data(
+    frames: Annotated[int, typer.Option(help="Frames per synthetic sequence.")] = 24,
+    config: Annotated[Path, typer.Option(help="Training config.")] = Path("configs/train_flow.yaml"),
+) -> None:
+    """The flow matcher's training data alone, packed into the config's data.cache: what a GPU
+    machine needs to run ``supportnet train-flow`` (carry the folder there)."""
+    console = make_console()
+    cache = _flow_data(config, frames, console).data.cache
+    console.print(f"frame packs in {cache}", markup=False, highlight=False)
+
+
 @app.command("flow")
 def make_flow_model(
-    frames: Annotated[int, typer.Option(help="Frames per synthetic sequence.")] = 80,
+    frames: Annotated[int, typer.Option(help="Frames per synthetic sequence.")] = 24,
     config: Annotated[Path, typer.Option(help="Training config.")] = Path("configs/train_flow.yaml"),
     out: Annotated[Path, typer.Option(help="ONNX file to write; its model card goes beside it.")] = (
         SHIPPED_FLOW_MODEL
@@ -142,8 +170,7 @@ def make_flow_model(
     """The flow matcher."""
     console = make_console()
     start = time.perf_counter()
-    _synthesise(frames, console, maps=False)
-    train_config = load_train_config(config, [], FlowTrainConfig)
+    train_config = _flow_data(config, frames, console)
     summary = _trained(train_config, run_train_flow, console)
     report = export_onnx(Path(summary["best_checkpoint"]), out, overwrite=True)
     card = _card(out, report, train_config, frames, summary, "best_val_epe", start)

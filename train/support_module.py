@@ -7,17 +7,20 @@ held-out frames (:func:`supportnet.nets.map_targets.agreement_scores`).
 
 from __future__ import annotations
 
+import math
+
 import kornia.augmentation as KA
 import lightning as L
 import numpy as np
 import torch
 import torch.nn.functional as F
+from lightning.pytorch.callbacks import Timer
 
 from supportnet.nets.map_targets import agreement_scores
 from supportnet.nets.support_unet import ModelConfig, SupportUNet
 from train.train_config import AugmentConfig, OptimConfig
 
-__all__ = ["SupportModule", "one_cycle", "photometric", "weighted_bce"]
+__all__ = ["SupportModule", "one_cycle", "one_cycle_factor", "photometric", "run_progress", "weighted_bce"]
 
 VAL_PIXELS_PER_FRAME = 20_000
 """Validation keeps at most this many weighted pixels per frame (a fixed subsample) for ρ."""
@@ -100,9 +103,34 @@ def photometric(colour: float, blur: float) -> KA.AugmentationSequential:
     )
 
 
+def run_progress(trainer: L.Trainer) -> float:
+    """How far a run is through its budget, 0 → 1: the optimiser steps done over those planned
+    (``max_epochs``), or the training time spent over ``max_time``, whichever is further on. A
+    run that ``max_time`` stops early still ends its schedule and curriculum."""
+    steps = trainer.global_step / max(trainer.estimated_stepping_batches, 1)
+    timers = [c for c in trainer.callbacks if isinstance(c, Timer)]
+    if not timers or timers[0].time_remaining("train") is None:
+        return min(steps, 1.0)
+    elapsed, remaining = timers[0].time_elapsed("train"), timers[0].time_remaining("train")
+    return min(max(steps, elapsed / max(elapsed + remaining, 1e-9)), 1.0)
+
+
+def one_cycle_factor(
+    progress: float, warmup: float = 0.3, div: float = 25.0, final_div: float = 1e4
+) -> float:
+    """The learning rate over its peak at ``progress`` ∈ [0, 1]: torch's ``OneCycleLR`` (cosine
+    up from peak/``div`` over ``warmup`` of the run, then down to peak/(``div``·``final_div``))."""
+    if progress < warmup:
+        low, high, t = 1.0 / div, 1.0, progress / warmup
+    else:
+        low, high, t = 1.0, 1.0 / (div * final_div), (progress - warmup) / (1.0 - warmup)
+    return high + (low - high) * (1.0 + math.cos(math.pi * min(t, 1.0))) / 2.0
+
+
 def one_cycle(module: L.LightningModule, config: OptimConfig) -> dict:
-    """AdamW under a one-cycle schedule over the whole run, stepped per batch."""
+    """AdamW under a one-cycle schedule over the whole run (:func:`run_progress`), stepped per batch."""
     optimizer = torch.optim.AdamW(module.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    steps = module.trainer.estimated_stepping_batches
-    scheduler = torch.optim.lr_scheduler.OneCycleLR(optimizer, config.lr, total_steps=steps)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda _: one_cycle_factor(run_progress(module.trainer))
+    )
     return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}

@@ -110,7 +110,10 @@ class FlowDataConfig(_Group):
     crop: tuple[PositiveInt, PositiveInt] = Field((128, 320), description="training crop (H, W)")
     batch_size: int = Field(4, ge=1)
     samples_per_epoch: int = Field(640, ge=1)
-    workers: int = Field(0, ge=0)
+    workers: int = Field(0, ge=-1, description="loader processes (-1: one per CPU core but one)")
+    cache: Path | None = Field(
+        None, description="folder of frame packs (train.npz, val.npz): read where they exist, else written"
+    )
     near_m: float = Field(2.0, gt=0, description="the LiDAR image holds near_m / depth")
     working_focal_px: float = Field(360.0, gt=0, description="images are resampled to this focal length")
     perturbation: PerturbationConfig = PerturbationConfig()

@@ -42,3 +42,8 @@ SEMANTIC_KITTI: dict[int, str] = {
 
 def class_name(class_id: int) -> str:
     return SEMANTIC_KITTI.get(int(class_id), f"class-{int(class_id)}")
+
+
+RIGID_CLASSES = frozenset({10, 50, 51, 52, 71, 80, 81, 99})
+"""Rigid structure (cars, buildings, fences, trunks, poles, signs): shapes that hold still, where
+matching should be exact, unlike swaying vegetation (70)."""

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from calib.data.classes import RIGID_CLASSES
 from calib.data.kitti_odometry import KittiOdometryWriter
 from calib.data.types import Calibration, Frame
 from calib.errors import ConfigError
@@ -27,7 +28,6 @@ from calib.synth.world import World
 
 __all__ = ["SyntheticFrame", "Synthesizer", "reference_extrinsic", "write_sequence"]
 
-RIGID_CLASSES = {10, 50, 51, 52, 71, 80, 81, 99}
 EFFECTS_STREAM = 1
 """Third seed word of each frame's camera-effects generator (the frame's own is ``[seed, i]``)."""
 MAX_FRAMES = 100_000

@@ -15,6 +15,7 @@ import torch
 
 from calib.data.types import Frame
 from calib.errors import DataError
+from calib.features import RingProfile
 from calib.match.correspondences import Correspondences, working_view
 from calib.match.edge_matcher import lidar_edges
 from calib.projection import ProjectedScan, Visibility, project_scan
@@ -31,13 +32,19 @@ VISIBILITY = Visibility(window=3)
 
 
 def lidar_image(
-    scan: ProjectedScan, points_lidar: np.ndarray, T_cam_lidar: np.ndarray, K: np.ndarray, near_m: float
+    scan: ProjectedScan,
+    points_lidar: np.ndarray,
+    T_cam_lidar: np.ndarray,
+    K: np.ndarray,
+    near_m: float,
+    rings: RingProfile | None = None,
 ) -> np.ndarray:
     """The network's LiDAR input of a scan projected under ``T_cam_lidar`` with ``K``:
-    ``(5, H, W)`` float32 (see :func:`supportnet.nets.flow_net.lidar_input`)."""
+    ``(5, H, W)`` float32 (see :func:`supportnet.nets.flow_net.lidar_input`); ``rings``: the
+    whole scan's ring profile where already known (else measured from ``points_lidar``)."""
     depth = torch.from_numpy(scan.depth_image())
     intensity = torch.from_numpy(np.clip(scan.intensity_image(), 0.0, 1.0))
-    edges, _ = lidar_edges(scan, points_lidar, T_cam_lidar, K)
+    edges, _ = lidar_edges(scan, points_lidar, T_cam_lidar, K, rings=rings)
     return lidar_input(depth, intensity, torch.from_numpy(edges), near_m).numpy()
 
 

@@ -6,13 +6,22 @@ import torch
 
 from calib.data import open_dataset
 from calib.errors import DataError
+from calib.geometry import perturb
 from calib.match.edge_matcher import EdgeMatcherConfig
 from export.onnx_export import export_onnx
 from supportnet.nets.flow_net import image_orientation
 from supportnet.runtime.flow_matcher import FlowMatcher
 from supportnet.runtime.matcher_factory import build_matcher
 from train.fit import run_train_flow
-from train.flow_data import curriculum_bound, flow_sample, load_scans
+from train.flow_data import (
+    PACK_STEP_M,
+    FlowDataModule,
+    curriculum_bound,
+    flow_sample,
+    load_scans,
+    read_frames,
+    write_frames,
+)
 from train.flow_module import MIRROR_SIGNS, sequence_loss
 from train.train_config import FlowDataConfig, FlowTrainConfig, load_train_config
 
@@ -56,10 +65,58 @@ def test_true_flow_of_a_known_camera_shift(tiny):
 
 def test_curriculum_goes_from_large_to_small(tiny):
     config = FlowDataConfig(sources=tiny[1], perturbation={"start": (30, 4), "end": (6, 1)})
-    assert curriculum_bound(config, 0, 10) == pytest.approx((30, 4))
-    assert curriculum_bound(config, 9, 10) == pytest.approx((6, 1))
-    middle = curriculum_bound(config, 4, 9)  # geometric: the square root of start · end
+    assert curriculum_bound(config, 0.0) == pytest.approx((30, 4))
+    assert curriculum_bound(config, 1.0) == pytest.approx((6, 1))
+    assert curriculum_bound(config, 1.5) == pytest.approx((6, 1))  # a run past its plan stays at the end
+    middle = curriculum_bound(config, 0.5)  # geometric: the square root of start · end
     assert middle == pytest.approx((np.sqrt(180), 2))
+
+
+def test_frame_pack_keeps_what_the_flow_needs(tiny, tmp_path):
+    config = FlowDataConfig(sources=tiny[1])
+    frames = load_scans(config.sources[0], 1, config.working_focal_px)
+    write_frames(frames, tmp_path / "train.npz")
+    back = read_frames(tmp_path / "train.npz")
+    assert len(back) == len(frames) and np.array_equal(back.K, frames.K) and np.array_equal(back.T, frames.T)
+    for a, b in zip(frames.points, back.points, strict=True):
+        assert a.shape == b.shape and np.abs(a[:, :3] - b[:, :3]).max() <= PACK_STEP_M / 2 + 1e-6
+    assert all(np.array_equal(a, b) for a, b in zip(frames.labels, back.labels, strict=True))
+    assert back.rings[0].median_deg == frames.rings[0].median_deg
+    assert np.array_equal(back.rings[0].spacing_deg, frames.rings[0].spacing_deg)
+    assert np.abs(back.images[0].astype(float) - frames.images[0]).mean() < 4  # JPEG at quality 95
+    T = perturb(frames.T[0], 10.0, 2.0, torch.Generator().manual_seed(0))
+    before, after = flow_sample(frames, 0, T, config.near_m), flow_sample(back, 0, T, config.near_m)
+    counts = [float((x["valid"] > 0).sum()) for x in (before, after)]
+    assert abs(counts[1] - counts[0]) < 0.02 * counts[0]  # points move by ≤ 2 mm: some change pixel
+    both = (before["valid"] > 0) & (after["valid"] > 0)
+    assert (before["flow"] - after["flow"]).abs().amax(0)[both[0]].median() < 0.05  # px
+
+
+def test_frame_pack_refuses_another_file(tmp_path):
+    (tmp_path / "x.npz").write_bytes(b"not a pack")
+    with pytest.raises(DataError, match="not a frame pack"):
+        read_frames(tmp_path / "x.npz")
+
+
+def test_data_module_trains_from_packs_alone(tiny, tmp_path):
+    config = FlowDataConfig(sources=tiny[1], cache=tmp_path / "cache", crop=(64, 96), frame_stride=1)
+    first = FlowDataModule(config)
+    first.setup()
+    assert (tmp_path / "cache" / "train.npz").is_file() and (tmp_path / "cache" / "val.npz").is_file()
+    gone = [{**s, "data": str(tmp_path / "missing")} for s in tiny[1]]  # a GPU machine has packs only
+    second = FlowDataModule(config.model_copy(update={"sources": FlowDataConfig(sources=gone).sources}))
+    second.setup()
+    assert len(second.train) == len(first.train) == 3 and len(second.val) == len(first.val)
+    second.set_progress(1.0)
+    assert tuple(second._crops.bound.tolist()) == pytest.approx(config.perturbation.end)
+    crop = second._crops[0]
+    assert crop["image"].shape == (3, 64, 96) and crop["lidar"].shape == (5, 64, 96)
+
+
+def test_crops_must_fit_the_smallest_image(tiny, tmp_path):
+    config = FlowDataConfig(sources=tiny[1], crop=(189, 96))
+    with pytest.raises(DataError, match="larger than the smallest image size"):
+        FlowDataModule(config).setup()
 
 
 def test_sequence_loss_weights_later_steps_more():

@@ -15,7 +15,7 @@ from supportnet.cli.cmd_predict import run_predict
 from supportnet.runtime.support_predictor import SupportPredictor
 from train.fit import run_train
 from train.support_data import SupportDataModule
-from train.support_module import SupportModule, weighted_bce
+from train.support_module import SupportModule, one_cycle_factor, weighted_bce
 from train.train_config import DataConfig, load_train_config
 
 
@@ -136,3 +136,17 @@ def test_config_overrides_and_typos(tiny, tmp_path):
         load_train_config(path, ["trainer.max_epoch=3"])
     with pytest.raises(DataError, match="is not key.sub=value"):
         load_train_config(path, ["max_epochs"])
+
+
+def test_one_cycle_factor_is_torchs_one_cycle():
+    optimizer = torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=1.0)
+    steps = 1001
+    scheduler = torch.optim.lr_scheduler.OneCycleLR(optimizer, 1.0, total_steps=steps, cycle_momentum=False)
+    for step in range(steps - 1):
+        if step % 50 == 0:
+            assert one_cycle_factor(step / (steps - 1)) == pytest.approx(
+                optimizer.param_groups[0]["lr"], rel=0.01, abs=1e-5
+            )
+        optimizer.step()
+        scheduler.step()
+    assert one_cycle_factor(1.0) == pytest.approx(1 / 25 / 1e4)

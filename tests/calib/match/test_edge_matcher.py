@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from calib.data import open_dataset
+from calib.data.classes import RIGID_CLASSES
 from calib.data.real_fixtures import AMZ_DRIVE, AMZ_DRIVE_MORE
 from calib.data.types import Calibration, Frame
 from calib.errors import DataError
@@ -21,7 +22,7 @@ from calib.match.edge_matcher import (
     lidar_field,
 )
 from calib.projection import Visibility, project_points, project_scan, transform_points
-from calib.synth.generate import RIGID_CLASSES, Synthesizer
+from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
 from calib.yaml_io import validate
 
