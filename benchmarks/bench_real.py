@@ -54,6 +54,7 @@ from calib.pipeline import Calibrator
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
 from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
+from supportnet.runtime.matcher_factory import build_matcher
 
 LEVELS = {"0": (0.0, 0.0), "2": (10.0, 2.0), "5": (25.0, 5.0), "10": (50.0, 10.0)}
 """Start errors: level name (its rotation in °) -> (cm, °). ``0`` starts at the reference itself."""
@@ -65,6 +66,7 @@ VARIANTS = {
     "contour": "contour+dense",
     "global-contour": "global+contour+dense",
     "global-pyramid": "global+pyramid+dense",  # the packaged calibrate.yaml
+    "flow-global": "flow+global+dense",  # the learned matcher (its own pyramid-free passes)
 }
 PYRAMID_FOCALS_PX = (90.0, 180.0)
 """The ``pyramid`` variants' coarser working focal lengths (``pyramid_focals_px``)."""
@@ -92,7 +94,8 @@ class Dataset:
 
 def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
     """Each variant's config: the packaged one with the global coarse stage, the contour
-    refinement and the matcher pyramid (:data:`PYRAMID_FOCALS_PX`) switched on as the name says."""
+    refinement, the matcher pyramid (:data:`PYRAMID_FOCALS_PX`) and the learned flow matcher
+    switched on as the name says."""
     base = load_calibrate_config()
 
     def switched(name: str) -> CalibrateConfig:
@@ -102,6 +105,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "coarse": base.coarse.model_copy(update={"enabled": "global" in stages}),
                 "contour": base.contour.model_copy(update={"enabled": "contour" in stages}),
                 "pyramid_focals_px": PYRAMID_FOCALS_PX if "pyramid" in stages else (),
+                "matcher": "flow" if "flow" in stages else "edge",
             }
         )
 
@@ -136,7 +140,8 @@ def one_run(
     run: dict = {"start": {"cm": start_error.translation_cm, "deg": start_error.rotation_deg}}
     clock = time.perf_counter()
     try:
-        result = Calibrator(config=config).calibrate(frames, T_init=T_start, seed=seed)
+        matcher = build_matcher(config.matcher, config.edge, config.flow_model)
+        result = Calibrator(config=config, matcher=matcher).calibrate(frames, T_init=T_start, seed=seed)
     except Exception as error:  # noqa: BLE001 (a benchmark records every failure and goes on)
         run.update(
             final=None,

@@ -16,6 +16,7 @@ import json
 import os
 import platform
 import re
+import statistics
 from pathlib import Path
 
 RESULTS = Path(__file__).parent / "results"
@@ -65,7 +66,8 @@ def speed() -> list[str]:
             )
     if flow := _load("flow_matcher"):
         for name, r in flow["sequences"].items():
-            rows.append([f"flow matcher, {name}", f"{r['flow']['ms_per_frame']:.0f} ms/frame (onnxruntime)"])
+            ms = statistics.median(v["ms_per_frame"] for k, v in r.items() if k.endswith("/flow"))
+            rows.append([f"flow matcher, {name}", f"{ms:.0f} ms/frame (onnxruntime)"])
     if refine := _load("refine"):
         rows.append(["Stage 4 refinement (one solve)", f"{refine['sgis']['seconds_median']:.2f} s"])
     return ["### Speed", ""] + (
@@ -152,8 +154,9 @@ def matchers() -> list[str]:
     rows = [
         [
             name,
-            matcher,
-            px(r["epe_median_px"]),
+            *key.split("/"),
+            f"{px(r['epe_median_px'])} / {px(r['epe_p90_px'])}",
+            px(r["toward_reference"]),
             px(r.get("epe_median_common_px")),
             px(r["epe_median_rigid_px"]),
             px(r["epe_median_foliage_px"]),
@@ -161,15 +164,21 @@ def matchers() -> list[str]:
             f"{r['points_per_frame']:.0f}",
         ]
         for name, sequence in result["sequences"].items()
-        for matcher, r in sequence.items()
+        for key, r in sequence.items()
     ]
-    cm, deg = result["error_cm_deg"]
-    lines = ["", f"Stage 2, endpoint error medians in px under a {cm:.0f} cm / {deg:.0f}° error:", ""]
+    lines = [
+        "",
+        f"Stage 2, endpoint errors in px under errors of 1-10° ({result['cm_per_deg']:g} cm per degree); "
+        "toward: the share of residuals pointing toward the reference:",
+        "",
+    ]
     lines += _table(
         [
             "sequence",
+            "°",
             "matcher",
-            "own points",
+            "median / p90",
+            "toward",
             "common points",
             "rigid",
             "foliage",

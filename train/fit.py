@@ -76,6 +76,8 @@ def run_train_flow(config: FlowTrainConfig, overwrite: bool = False, console: Co
         config.data.near_m,
         config.data.working_focal_px,
     )
+    if config.init is not None:
+        module.load_weights(config.init)
     with removed_on_failure(_partial(config)):
         return _fit(config, FlowDataModule(config.data), module, "val/epe", "min", overwrite, console)
 

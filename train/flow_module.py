@@ -8,11 +8,15 @@ foliage), beside the error of predicting no flow at all.
 
 from __future__ import annotations
 
+import pickle
+from pathlib import Path
+
 import lightning as L
 import numpy as np
 import torch
 
 from calib.data.classes import RIGID_CLASSES
+from calib.errors import DataError
 from supportnet.nets.flow_net import LIDAR_CHANNELS, FlowConfig, FlowNet
 from train.support_module import one_cycle, photometric, run_progress
 from train.train_config import FlowAugmentConfig, OptimConfig
@@ -24,6 +28,7 @@ MIRROR_SIGNS = {
     "lidar": tuple(-1.0 if name == "edge_sin" else 1.0 for name in LIDAR_CHANNELS),
 }
 """Channels that change sign in a mirrored image: flow x, and sin 2θ of an edge at angle θ."""
+INTENSITY = LIDAR_CHANNELS.index("relative_intensity")
 FOLIAGE_CLASSES = {70}
 """Vegetation (the synthetic worlds' swaying leaves), the class CMRNext-style matching finds hard."""
 
@@ -63,6 +68,18 @@ class FlowModule(L.LightningModule):
         self.register_buffer("std", torch.tensor(self.contract.std).view(1, 3, 1, 1), persistent=False)
         self._val: list[np.ndarray] = []
 
+    def load_weights(self, path: Path) -> None:
+        """The network's weights from a checkpoint of the same architecture (fine-tuning).
+
+        Raises:
+            DataError: not readable, or another network's weights."""
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
+            self.load_state_dict(state)
+        except (OSError, KeyError, RuntimeError, pickle.UnpicklingError) as error:
+            first = str(error).splitlines()[0] if str(error) else type(error).__name__
+            raise DataError(path, f"holds no weights of this flow network ({first})") from None
+
     def forward(self, image: torch.Tensor, lidar: torch.Tensor, all_iterations: bool = False):
         """``image (B, 3, H, W)`` RGB in [0, 1] (normalised per the contract), ``lidar (B, 5, H, W)``."""
         return self.net((image - self.mean) / self.std, lidar, all_iterations)
@@ -81,6 +98,21 @@ class FlowModule(L.LightningModule):
                 flipped = flipped * torch.tensor(MIRROR_SIGNS[key], device=self.device).view(1, -1, 1, 1)
             batch[key] = torch.where(mirror.view(-1, 1, 1, 1), flipped, batch[key])
         batch["image"] = self.photometric(batch["image"]).clamp(0, 1)
+        return self._sensor_variety(batch)
+
+    def _sensor_variety(self, batch: dict) -> dict:
+        """Other cameras and LiDARs than the synthetic ones: grey images, intensity response
+        curves (a power in [1/2, 2]) and scans without intensity, each per sample."""
+        n, a = len(batch["image"]), self.augment
+        draw = lambda p: (torch.rand(n, device=self.device) < p).view(-1, 1, 1, 1)  # noqa: E731
+        grey = batch["image"].mean(1, keepdim=True).expand_as(batch["image"])
+        batch["image"] = torch.where(draw(a.grey), grey, batch["image"])
+        lidar = batch["lidar"].clone()
+        power = torch.exp2(torch.empty(n, 1, 1, device=self.device).uniform_(-1, 1))
+        intensity = lidar[:, INTENSITY]
+        intensity = torch.where(draw(a.intensity_gamma)[:, 0], intensity.clamp_min(0) ** power, intensity)
+        lidar[:, INTENSITY] = torch.where(draw(a.intensity_off)[:, 0], torch.zeros_like(intensity), intensity)
+        batch["lidar"] = lidar
         return batch
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:

@@ -123,12 +123,20 @@ class FlowAugmentConfig(_Group):
     flip: float = Field(0.5, ge=0, le=1, description="mirror image, LiDAR image and flow together")
     colour: float = Field(0.8, ge=0, le=1, description="colour jitter probability (image only)")
     blur: float = Field(0.2, ge=0, le=1, description="Gaussian blur probability (image only)")
+    grey: float = Field(0.0, ge=0, le=1, description="grey-level image probability (KITTI's camera 0)")
+    intensity_gamma: float = Field(
+        0.0, ge=0, le=1, description="probability of raising the LiDAR intensity to a power in [1/2, 2]"
+    )
+    intensity_off: float = Field(0.0, ge=0, le=1, description="probability of a LiDAR without intensity")
 
 
 class FlowTrainConfig(_Group):
     seed: int = Field(0, ge=0, lt=SEED_LIMIT, description="an integer in [0, 2^32)")
     out: Path = Field(Path("runs/flow"), description="checkpoints, logs and curves go here")
     data: FlowDataConfig
+    init: Path | None = Field(
+        None, description="start from these weights: a checkpoint of the same network (fine-tuning)"
+    )
     model: FlowConfig = FlowConfig()
     augment: FlowAugmentConfig = FlowAugmentConfig()
     optim: OptimConfig = OptimConfig(lr=1e-3)

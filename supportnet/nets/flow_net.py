@@ -34,9 +34,11 @@ from supportnet.nets.contract import Contract
 __all__ = ["FlowConfig", "FlowNet", "LIDAR_CHANNELS", "edge_features", "image_orientation", "lidar_input"]
 
 STRIDE = 8
-LIDAR_CHANNELS = ("mask", "inverse_depth", "intensity", "edge_cos", "edge_sin")
-"""The LiDAR image's channels: 1 where a point lands; ``near_m / depth`` (≤ 1); its intensity; and
-the scan's edge orientation field ``e · (cos 2θ, sin 2θ)`` (:func:`calib.match.edge_matcher.lidar_edges`)."""
+LIDAR_CHANNELS = ("mask", "inverse_depth", "relative_intensity", "edge_cos", "edge_sin")
+"""The LiDAR image's channels: 1 where a point lands; ``near_m / depth`` (≤ 1); its intensity over
+the scan's 99th percentile (:func:`~supportnet.runtime.flow_matcher.relative_intensity`: scanners
+report 0–1 or 0–255); and the scan's edge orientation field ``e · (cos 2θ, sin 2θ)``
+(:func:`calib.match.edge_matcher.lidar_edges`)."""
 EDGE_GAIN = 8.0
 """Scale of the edge features, so the fixed correlation starts at the learned one's magnitude."""
 

@@ -8,9 +8,10 @@ from calib.data import open_dataset
 from calib.errors import DataError
 from calib.geometry import perturb
 from calib.match.edge_matcher import EdgeMatcherConfig
+from calib.projection import project_scan
 from export.onnx_export import export_onnx
 from supportnet.nets.flow_net import image_orientation
-from supportnet.runtime.flow_matcher import FlowMatcher
+from supportnet.runtime.flow_matcher import FlowMatcher, relative_intensity
 from supportnet.runtime.matcher_factory import build_matcher
 from train.fit import run_train_flow
 from train.flow_data import (
@@ -22,7 +23,7 @@ from train.flow_data import (
     read_frames,
     write_frames,
 )
-from train.flow_module import MIRROR_SIGNS, sequence_loss
+from train.flow_module import INTENSITY, MIRROR_SIGNS, FlowModule, sequence_loss
 from train.train_config import FlowDataConfig, FlowTrainConfig, load_train_config
 
 
@@ -195,3 +196,59 @@ def test_mirror_signs_turn_the_field_of_a_mirrored_image():
     assert torch.allclose(
         image_orientation(image.flip(-1)), image_orientation(image).flip(-1) * sign, atol=1e-5
     )
+
+
+TINY_NET = {"feature_dim": 16, "hidden_dim": 16, "context_dim": 8, "levels": 2, "radius": 2, "iterations": 2}
+
+
+def _module(augment: dict | None = None, **net) -> FlowModule:
+    return FlowModule({**TINY_NET, **net}, {"lr": 1e-3}, augment or {}, 0.8, 2.0, 360.0)
+
+
+def test_relative_intensity_reads_any_scale_alike(tiny):
+    root, _ = tiny
+    with open_dataset(root / "urban", sequence="01") as seq:
+        frame = seq[0]
+    T, K = frame.calibration.T_cam_lidar, frame.K
+    scan = project_scan(frame.points, T, K, frame.image_size)
+    scaled = frame.points * np.array([1, 1, 1, 255], np.float32)  # a 0-255 scanner
+    relative = relative_intensity(scan)
+    assert relative.min() >= 0 and relative.max() == 1
+    assert np.allclose(relative_intensity(project_scan(scaled, T, K, frame.image_size)), relative, atol=1e-5)
+    assert (relative[scan.depth_image() == 0] == 0).all()
+
+
+def test_sensor_variety_changes_only_what_it_names():
+    batch = {"image": torch.rand(4, 3, 8, 10), "lidar": torch.rand(4, 5, 8, 10)}
+    grey = _module({"grey": 1.0})._sensor_variety(dict(batch))
+    assert torch.allclose(grey["image"], batch["image"].mean(1, keepdim=True).expand(-1, 3, -1, -1))
+    assert torch.equal(grey["lidar"], batch["lidar"])
+    off = _module({"intensity_off": 1.0})._sensor_variety(dict(batch))
+    assert (off["lidar"][:, INTENSITY] == 0).all() and torch.equal(off["image"], batch["image"])
+    others = [c for c in range(5) if c != INTENSITY]
+    assert torch.equal(off["lidar"][:, others], batch["lidar"][:, others])
+    curved = _module({"intensity_gamma": 1.0})._sensor_variety(dict(batch))["lidar"][:, INTENSITY]
+    assert (
+        (curved >= 0).all()
+        and (curved <= 1).all()
+        and not torch.allclose(curved, batch["lidar"][:, INTENSITY])
+    )
+    # a power keeps the order of intensities within a sample
+    a, b = batch["lidar"][0, INTENSITY].flatten(), curved[0].flatten()
+    assert torch.equal(a.argsort(), b.argsort())
+
+
+def test_fine_tuning_starts_from_the_weights_it_is_given(tmp_path):
+    trained = _module()
+    torch.save({"state_dict": trained.state_dict()}, tmp_path / "trained.ckpt")
+    fresh = _module()
+    fresh.load_weights(tmp_path / "trained.ckpt")
+    assert all(
+        torch.equal(a, b)
+        for a, b in zip(fresh.state_dict().values(), trained.state_dict().values(), strict=True)
+    )
+    with pytest.raises(DataError, match="holds no weights of this flow network"):
+        _module(feature_dim=24).load_weights(tmp_path / "trained.ckpt")
+    (tmp_path / "text.ckpt").write_text("not a checkpoint")
+    with pytest.raises(DataError, match="holds no weights of this flow network"):
+        fresh.load_weights(tmp_path / "text.ckpt")
