@@ -9,6 +9,7 @@ crop; validation uses whole frames with fixed draws.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,19 +119,25 @@ def _joined(arrays: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(arrays), np.cumsum([0] + [len(a) for a in arrays])
 
 
-def _split(joined: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:
+def _parts(joined: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:
     return [joined[a:b] for a, b in zip(offsets[:-1], offsets[1:], strict=True)]
 
 
-def write_frames(frames: ScanFrames, path: Path, quality: int = 95) -> None:
+def write_frames(frames: ScanFrames, path: Path, made_from: str = "", quality: int = 95) -> None:
     """``frames`` as one compact ``.npz``: JPEG images, the points a camera can see on a 4 mm grid
-    (:data:`PACK_STEP_M`) with float16 intensities, ring profiles. A synthetic 64-beam frame takes
-    about 0.2 MB instead of 3 (:func:`read_frames` reads it back)."""
+    (:data:`PACK_STEP_M`) with float16 intensities, ring profiles, and ``made_from`` (what they
+    were read from, for :func:`read_frames` to compare). A synthetic 64-beam frame takes about
+    0.2 MB instead of 3."""
     jpegs = [
         np.frombuffer(cv2.imencode(".jpg", im[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])[1], np.uint8)
         for im in frames.images
     ]
-    arrays = {"K": frames.K, "T": frames.T, "ring_median": np.array([r.median_deg for r in frames.rings])}
+    arrays = {
+        "K": frames.K,
+        "T": frames.T,
+        "ring_median": np.array([r.median_deg for r in frames.rings]),
+        "made_from": np.array(made_from),
+    }
     limit = np.iinfo(np.int16).max * PACK_STEP_M
     kept = [(np.abs(p[:, :3]) < limit).all(1) for p in frames.points]
     points = [p[k] for p, k in zip(frames.points, kept, strict=True)]
@@ -149,18 +156,29 @@ def write_frames(frames: ScanFrames, path: Path, quality: int = 95) -> None:
     path.with_suffix(".partial").replace(path)
 
 
-def read_frames(path: Path) -> ScanFrames:
-    """The frames :func:`write_frames` stored in ``path``."""
+def read_frames(path: Path, made_from: str | None = None) -> ScanFrames:
+    """The frames :func:`write_frames` stored in ``path``.
+
+    Raises:
+        DataError: not a frame pack, or (``made_from`` given) one made from something else: a pack
+            left by another config is refused rather than trained on.
+    """
     try:
         with np.load(path) as z:
             parts = {
-                k[: -len("_offsets")]: _split(z[k[: -len("_offsets")]], z[k])
+                k[: -len("_offsets")]: _parts(z[k[: -len("_offsets")]], z[k])
                 for k in z.files
                 if k.endswith("_offsets")
             }
-            K, T, medians = z["K"], z["T"], z["ring_median"]
+            K, T, medians, packed_from = z["K"], z["T"], z["ring_median"], str(z["made_from"])
     except (OSError, ValueError, KeyError) as error:
         raise DataError(path, f"is not a frame pack written by write_frames ({error})") from None
+    if made_from is not None and packed_from != made_from:
+        raise DataError(
+            path,
+            f"was packed from {packed_from or 'something unrecorded'}, not {made_from}: delete it (it is "
+            "re-made from the sources) or point data.cache elsewhere",
+        )
     images = [cv2.imdecode(j, cv2.IMREAD_COLOR)[..., ::-1].copy() for j in parts["jpeg"]]
     rings = [
         RingProfile(e, s, float(m))
@@ -251,27 +269,34 @@ class FlowDataModule(L.LightningDataModule):
         self.val: list[dict[str, torch.Tensor]] | None = None
         self._crops: _Perturbed | None = None
 
-    def _split(self, split: str) -> ScanFrames:
+    def _frames(self, split: str) -> ScanFrames:
+        """One split's frames: from its pack where there is one, else from the sources (and
+        packed where ``data.cache`` is set)."""
+        stride = self.config.frame_stride if split == "train" else self.config.val_frame_stride
+        sources = [s for s in self.config.sources if s.split == split]
+        made_from = json.dumps(
+            {
+                "sources": [s.model_dump(mode="json", exclude={"split"}) for s in sources],
+                "frame_stride": stride,
+                "working_focal_px": self.config.working_focal_px,
+            },
+            sort_keys=True,
+        )
         pack = self.config.cache / f"{split}.npz" if self.config.cache is not None else None
         if pack is not None and pack.is_file():
-            return read_frames(pack)
-        stride = self.config.frame_stride if split == "train" else self.config.val_frame_stride
-        parts = [
-            load_scans(s, stride, self.config.working_focal_px)
-            for s in self.config.sources
-            if s.split == split
-        ]
+            return read_frames(pack, made_from)
+        parts = [load_scans(s, stride, self.config.working_focal_px) for s in sources]
         if not parts:
             raise DataError("data.sources", f"no sequence has split: {split}")
         frames = _concat(parts)
         if pack is not None:
-            write_frames(frames, pack)
+            write_frames(frames, pack, made_from)
         return frames
 
     def setup(self, stage: str | None = None) -> None:
         if self.train is not None:
             return
-        train, val = self._split("train"), self._split("val")
+        train, val = self._frames("train"), self._frames("val")
         smallest = tuple(min(im.shape[k] for im in train.images) for k in (0, 1))
         if self.config.crop[0] > smallest[0] or self.config.crop[1] > smallest[1]:
             raise DataError(

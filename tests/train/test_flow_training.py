@@ -1,4 +1,5 @@
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -100,18 +101,24 @@ def test_frame_pack_refuses_another_file(tmp_path):
 
 
 def test_data_module_trains_from_packs_alone(tiny, tmp_path):
-    config = FlowDataConfig(sources=tiny[1], cache=tmp_path / "cache", crop=(64, 96), frame_stride=1)
+    root, sources = tiny
+    shutil.copytree(root, tmp_path / "data")
+    moved = [{**s, "data": s["data"].replace(str(root), str(tmp_path / "data"))} for s in sources]
+    config = FlowDataConfig(sources=moved, cache=tmp_path / "cache", crop=(64, 96), frame_stride=1)
     first = FlowDataModule(config)
     first.setup()
     assert (tmp_path / "cache" / "train.npz").is_file() and (tmp_path / "cache" / "val.npz").is_file()
-    gone = [{**s, "data": str(tmp_path / "missing")} for s in tiny[1]]  # a GPU machine has packs only
-    second = FlowDataModule(config.model_copy(update={"sources": FlowDataConfig(sources=gone).sources}))
+    shutil.rmtree(tmp_path / "data")  # a GPU machine has the packs and the config only
+    second = FlowDataModule(config)
     second.setup()
     assert len(second.train) == len(first.train) == 3 and len(second.val) == len(first.val)
     second.set_progress(1.0)
     assert tuple(second._crops.bound.tolist()) == pytest.approx(config.perturbation.end)
     crop = second._crops[0]
     assert crop["image"].shape == (3, 64, 96) and crop["lidar"].shape == (5, 64, 96)
+    other = config.model_copy(update={"frame_stride": 2})  # a pack of other settings is refused
+    with pytest.raises(DataError, match="was packed from"):
+        FlowDataModule(other).setup()
 
 
 def test_crops_must_fit_the_smallest_image(tiny, tmp_path):
