@@ -1,11 +1,13 @@
 """Stage 2 side by side: the learned flow matcher against the EdgeMatcher on held-out sequences.
 
-Every 8th frame is matched under a fixed random extrinsic error (10 cm / 2°, seeded per frame, as
-the flow matcher's validation draws); a point's endpoint error is the distance from its matched
-pixel to where the reference extrinsic projects it. Medians over each matcher's own points, over
-the points every matcher returned ("common": the EdgeMatcher keeps only confident ones), and by
-class (rigid structure, foliage), beside the error of not matching at all, the points each
-matcher returns and milliseconds per frame. Then the final calibration error of Stage 4 with
+Every 8th frame of a sequence (every frame of a real fixture) is matched under fixed random
+extrinsic errors of 1°, 2°, 5° and 10° with 5 cm per degree (seeded per frame); a point's
+endpoint error is the distance from its matched pixel to where the reference extrinsic projects
+it. Medians and 90th percentiles over each matcher's own points, the share of residuals pointing
+toward the reference, medians over the points every matcher returned ("common": the EdgeMatcher
+keeps only confident ones) and by class (rigid structure, foliage), beside the error of not
+matching at all, the points each matcher returns and milliseconds per frame. Then the final
+calibration error of Stage 4 with
 either matcher, with uniform sampling and with SGIS on the predicted support map: ``--runs``
 paired runs from 10 cm / 2° on an 80-frame held-out sequence of each world (the same initial
 draws for every matcher and support). Prints tables and writes benchmarks/results/flow_matcher.json.
@@ -13,9 +15,10 @@ draws for every matcher and support). Prints tables and writes benchmarks/result
     python benchmarks/bench_flow_matcher.py [--data build/model/vineyard:09 ...] [--model FILE]
         [--real] [--runs 10]
 
-Without ``--data`` it synthesises one 40-frame sequence of each world with seed 9 (held out: the
-shipped models trained on seeds 1 to 3) in a temporary folder, at the small 624x188 size the
-shipped models were trained on (``small=True``).
+Without ``--data`` it synthesises one 40-frame full-resolution sequence of each world with seed 9
+(held out: the shipped flow matcher trained on seeds 101-116) in a temporary folder; ``--real``
+adds every real fixture in ../shared/realdata. The Stage 4 runs use small 624x188 sequences
+(seed 9), as the shipped support predictor was trained on.
 """
 
 from __future__ import annotations

@@ -50,11 +50,10 @@ from rich.console import Console
 from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import check_fixtures, realdata_root
 from calib.geometry import calibration_error, perturb
-from calib.pipeline import Calibrator
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
 from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
-from supportnet.runtime.matcher_factory import build_matcher
+from supportnet import Calibrator  # builds the config's matcher, the learned one too
 
 LEVELS = {"0": (0.0, 0.0), "2": (10.0, 2.0), "5": (25.0, 5.0), "10": (50.0, 10.0)}
 """Start errors: level name (its rotation in °) -> (cm, °). ``0`` starts at the reference itself."""
@@ -140,8 +139,7 @@ def one_run(
     run: dict = {"start": {"cm": start_error.translation_cm, "deg": start_error.rotation_deg}}
     clock = time.perf_counter()
     try:
-        matcher = build_matcher(config.matcher, config.edge, config.flow_model)
-        result = Calibrator(config=config, matcher=matcher).calibrate(frames, T_init=T_start, seed=seed)
+        result = Calibrator(config=config).calibrate(frames, T_init=T_start, seed=seed)
     except Exception as error:  # noqa: BLE001 (a benchmark records every failure and goes on)
         run.update(
             final=None,
