@@ -73,13 +73,13 @@ class ScanFrames:
 
 def _in_view(points: np.ndarray, T_cam_lidar: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """``(M,)`` bool: in front of the camera and projected within :data:`FOV_MARGIN` of the image."""
-    xyz = points[:, :3] @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]
-    z = xyz[:, 2]
-    ahead = z > 0.1
-    uv = (xyz[:, :2] @ K[:2, :2].T + K[:2, 2] * z[:, None]) / np.where(ahead, z, 1.0)[:, None]
+    points_cam = transform_points(
+        torch.from_numpy(T_cam_lidar), torch.from_numpy(points[:, :3].astype(np.float64))
+    )
+    uv, depth = (x.numpy() for x in project_points(points_cam, torch.from_numpy(K)))
     margin = FOV_MARGIN * K[0, 0]
     H, W = size
-    return ahead & (uv >= -margin).all(1) & (uv[:, 0] <= W + margin) & (uv[:, 1] <= H + margin)
+    return (depth > 0.1) & (uv >= -margin).all(1) & (uv[:, 0] <= W + margin) & (uv[:, 1] <= H + margin)
 
 
 def load_scans(source: SequenceSource, stride: int, focal_px: float) -> ScanFrames:
