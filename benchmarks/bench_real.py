@@ -34,11 +34,14 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import multiprocessing
+import os
 import platform
 import tempfile
 import time
 import zlib
 from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,7 +54,6 @@ from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import check_fixtures, realdata_root
 from calib.geometry import calibration_error, perturb
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
-from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
 from supportnet import Calibrator  # builds the config's matcher, the learned one too
 
@@ -219,6 +221,8 @@ def real_datasets(work: Path, notes: dict) -> Iterator[Dataset]:
 
 
 def synthetic_datasets(seeds: tuple[int, ...] = SYNTH_SEEDS) -> Iterator[Dataset]:
+    from calib.synth.generate import Synthesizer  # the ray caster: not needed for real data alone
+
     cache: dict[tuple, tuple[list[Frame], np.ndarray]] = {}
 
     def sequence(world: str, timing: dict, seed: int) -> tuple[list[Frame], np.ndarray]:
@@ -243,29 +247,109 @@ def synthetic_datasets(seeds: tuple[int, ...] = SYNTH_SEEDS) -> Iterator[Dataset
             yield Dataset(name, frames, SYNTH_FRAMES)
 
 
-def bench_dataset(
-    dataset: Dataset, levels: list[str], configs: dict, runs: int, shell: bool, progress: dict
+def dataset_runs(dataset: Dataset, levels: list[str], runs: int) -> list[tuple[str, int]]:
+    """The ``(level, run)`` pairs of one dataset (level ``0``, the reference, runs once)."""
+    return [(level, i) for level in levels for i in range(1 if level == "0" else runs)]
+
+
+def run_all(
+    dataset: Dataset, level: str, i: int, configs: dict[str, CalibrateConfig], shell: bool
+) -> dict[str, dict]:
+    """Run ``i`` of ``level`` on ``dataset`` with every variant, all from the same start."""
+    cm, deg = LEVELS[level]
+    frames, T_ref, extra = dataset.frames(i)
+    generator = torch.Generator().manual_seed(zlib.crc32(f"{dataset.name}/{level}/{i}".encode()))
+    T_start = draw_start(T_ref, cm, deg, generator, shell)
+    return {
+        variant: {"run": i, **extra, **one_run(frames, T_start, T_ref, config, seed=i)}
+        for variant, config in configs.items()
+    }
+
+
+def dataset_row(
+    dataset: Dataset, levels: list[str], done: dict[tuple[str, int], dict[str, dict]], where: str
 ) -> dict:
+    """The JSON row of one dataset from its runs ``{(level, run): {variant: run}}``."""
     row: dict = {"frames": dataset.count, "levels": {}}
+    day = time.strftime("%Y-%m-%d")  # rows of several runs are merged (--merge): each keeps its day
     for level in levels:
-        cm, deg = LEVELS[level]
-        count = 1 if level == "0" else runs
-        per_variant: dict[str, list[dict]] = {v: [] for v in configs}
-        for i in range(count):
-            frames, T_ref, extra = dataset.frames(i)
-            generator = torch.Generator().manual_seed(zlib.crc32(f"{dataset.name}/{level}/{i}".encode()))
-            T_start = draw_start(T_ref, cm, deg, generator, shell)
-            for variant, config in configs.items():
-                run = {"run": i, **extra, **one_run(frames, T_start, T_ref, config, seed=i)}
-                per_variant[variant].append(run)
-                progress["done"] += 1
-                console.print(progress_line(dataset.name, level, variant, run, progress))
-        day = time.strftime("%Y-%m-%d")  # rows of several runs are merged (--merge): each keeps its day
+        keys = sorted(i for lv, i in done if lv == level)
+        variants = done[(level, keys[0])].keys()
         row["levels"][level] = {
-            v: {"summary": summarise(r, dataset.count), "runs": r, "measured": day}
-            for v, r in per_variant.items()
+            v: {
+                "summary": summarise(r := [done[(level, i)][v] for i in keys], dataset.count),
+                "runs": r,
+                "measured": day,
+                "where": where,
+            }
+            for v in variants
         }
     return row
+
+
+@dataclass(frozen=True)
+class Selection:
+    """What a benchmark run covers, enough for a worker process to load the same datasets."""
+
+    only: str | None
+    wanted: frozenset[str] | None
+    synth_seeds: tuple[int, ...]
+
+
+def load_datasets(selection: Selection, work: Path, notes: dict) -> list[tuple[str, Dataset]]:
+    """``(part, dataset)`` of the selection, real before synthetic."""
+    sources = []
+    if selection.only != "synthetic":
+        sources.append(("real", real_datasets(work, notes)))
+    if selection.only != "real":
+        sources.append(("synthetic", synthetic_datasets(selection.synth_seeds)))
+    datasets = [(part, d) for part, source in sources for d in source]
+    if selection.wanted is not None and (unknown := selection.wanted - {d.name for _, d in datasets}):
+        known = ", ".join(d.name for _, d in datasets)
+        raise SystemExit(f"unknown datasets: {', '.join(sorted(unknown))}; known: {known}")
+    return [(part, d) for part, d in datasets if selection.wanted is None or d.name in selection.wanted]
+
+
+_WORKER: dict = {}
+"""A ``--jobs`` worker's datasets by name, its configs and its scratch folder."""
+
+
+def _worker_init(selection: Selection, variants: list[str]) -> None:
+    """Load the datasets once per worker, with one thread: the runs side by side use the cores."""
+    import cv2
+
+    torch.set_num_threads(1)
+    cv2.setNumThreads(1)
+    work = tempfile.TemporaryDirectory()  # removed when the worker exits
+    datasets = load_datasets(selection, Path(work.name), {})
+    _WORKER.update(datasets={d.name: d for _, d in datasets}, configs=variant_configs(variants), work=work)
+
+
+def _run_task(index: int, name: str, level: str, run: int, shell: bool) -> tuple[int, dict[str, dict]]:
+    return index, run_all(_WORKER["datasets"][name], level, run, _WORKER["configs"], shell)
+
+
+def run_tasks(
+    datasets: dict[str, Dataset],
+    tasks: list[tuple[str, str, int]],
+    configs: dict[str, CalibrateConfig],
+    shell: bool,
+    jobs: int,
+    selection: Selection,
+) -> Iterator[tuple[int, dict[str, dict]]]:
+    """``run_all`` of each task ``(dataset, level, run)``: in order with ``jobs == 1``, else in
+    ``jobs`` fresh processes at once (spawned: a fork of a process whose OpenMP threads have run
+    can hang), each loading ``selection`` itself, as they finish."""
+    if jobs == 1:
+        for index, (name, level, i) in enumerate(tasks):
+            yield index, run_all(datasets[name], level, i, configs, shell)
+        return
+    context = multiprocessing.get_context("spawn")
+    init = (selection, list(configs))
+    with ProcessPoolExecutor(jobs, mp_context=context, initializer=_worker_init, initargs=init) as pool:
+        futures = [pool.submit(_run_task, index, *task, shell) for index, task in enumerate(tasks)]
+        for future in as_completed(futures):
+            yield future.result()
 
 
 def progress_line(name: str, level: str, variant: str, run: dict, progress: dict) -> str:
@@ -359,7 +443,16 @@ def main() -> None:
         help="synthetic sequences' seeds, run i uses the (i mod n)-th (a config tuned on the default "
         "seeds is measured honestly on others)",
     )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="runs side by side, one process each (one thread each): for a machine of many cores; "
+        "their seconds are not this machine's one-at-a-time seconds (the rows say where they ran)",
+    )
     args = parser.parse_args()
+    if args.jobs < 1:
+        parser.error("--jobs must be at least 1")
     synth_seeds = tuple(int(s) for s in args.synth_seeds.split(","))
     levels = args.levels.split(",")
     variants = args.variants.split(",")
@@ -393,24 +486,36 @@ def main() -> None:
         return save_results("bench_real", done if earlier is None else merged(copy.deepcopy(earlier), done))
 
     with tempfile.TemporaryDirectory() as work:
-        sources = []
-        if args.only != "synthetic":
-            sources.append(("real", real_datasets(Path(work), notes)))
-        if args.only != "real":
-            sources.append(("synthetic", synthetic_datasets(synth_seeds)))
-        datasets = [(part, d) for part, source in sources for d in source]
-        known = [d.name for _, d in datasets]
-        if wanted is not None and (unknown := wanted - set(known)):
-            parser.error(f"unknown datasets: {', '.join(sorted(unknown))}; known: {', '.join(known)}")
-        datasets = [(part, d) for part, d in datasets if wanted is None or d.name in wanted]
-        per_dataset = sum(1 if level == "0" else args.runs for level in levels) * len(variants)
-        progress = {"done": 0, "total": per_dataset * len(datasets), "clock": clock}
+        selection = Selection(args.only, frozenset(wanted) if wanted else None, synth_seeds)
+        datasets = load_datasets(selection, Path(work), notes)
+        by_name = {d.name: d for _, d in datasets}
+        # the longest datasets first: with --jobs, the short runs fill the cores at the end
+        order = sorted(datasets, key=lambda pd: -pd[1].count) if args.jobs > 1 else datasets
+        tasks = [(d.name, level, i) for _, d in order for level, i in dataset_runs(d, levels, args.runs)]
+        left = {d.name: len(dataset_runs(d, levels, args.runs)) for _, d in datasets}
+        done: dict[str, dict] = {d.name: {} for _, d in datasets}
+        part_of = {d.name: part for part, d in datasets}
+        where = (
+            f"{args.jobs} runs at once on {os.cpu_count()} cores"
+            if args.jobs > 1
+            else f"{os.cpu_count()} cores"
+        )
+        results["jobs"] = args.jobs
+        progress = {"done": 0, "total": len(tasks) * len(variants), "clock": clock}
         print(HEADER, flush=True)
-        for part, dataset in datasets:
-            row = bench_dataset(dataset, levels, configs, args.runs, args.shell, progress)
-            results[part][dataset.name] = row
-            print("\n".join(table_lines(dataset.name, row)), flush=True)
-            save()
+        for index, variant_runs in run_tasks(by_name, tasks, configs, args.shell, args.jobs, selection):
+            name, level, i = tasks[index]
+            dataset = by_name[name]
+            done[name][(level, i)] = variant_runs
+            for variant, run in variant_runs.items():
+                progress["done"] += 1
+                console.print(progress_line(dataset.name, level, variant, run, progress))
+            left[dataset.name] -= 1
+            if left[dataset.name] == 0:
+                row = dataset_row(dataset, levels, done[dataset.name], where)
+                results[part_of[dataset.name]][dataset.name] = row
+                print("\n".join(table_lines(dataset.name, row)), flush=True)
+                save()
     for name, note in notes.items():
         print(f"{name}: {note}")
     print(f"wrote {save()} in {time.perf_counter() - clock:.0f} s")

@@ -240,7 +240,9 @@ def real_data() -> list[str]:
         f"Success: within {multi[0]:g} cm and {multi[1]:g}° of the reference for several frames, "
         f"{single[0]:g} cm and {single[1]:g}° for one; a run that raises fails. Final errors: median "
         "/ 90th percentile of the runs that returned; seconds: median per calibration; measured: the day "
-        "of the run that wrote the row (runs are merged; – : before rows kept their day).",
+        "of the run that wrote the row (runs are merged; – : before rows kept their day) and where "
+        "(several runs at once on one machine share its memory bandwidth: their seconds are longer "
+        "than one run's alone).",
     ]
     for part, title in (("real", "Real fixtures"), ("synthetic", "Synthetic, full resolution, unseen seeds")):
         rows = []
@@ -261,7 +263,7 @@ def real_data() -> list[str]:
                             f"{opt(s['deg_median'], '.3f')} / {opt(s['deg_p90'], '.3f')}",
                             str(s["raised"]),
                             opt(s["seconds_median"], ".1f"),
-                            entry.get("measured", "–"),
+                            ", ".join(x for x in (entry.get("measured", "–"), entry.get("where")) if x),
                         ]
                     )
         if rows:

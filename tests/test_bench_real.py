@@ -109,3 +109,31 @@ def test_report_has_a_real_data_table(monkeypatch):
         "| kitti-raw-0928-all6 | 6 | 2° / 10 cm | dense | 5 | 100% | 1.00 / 1.00 | 0.100 / 0.100 | 0 |"
         in text
     )
+
+
+def _fake_run(frames, T_start, T_ref, config, seed):
+    """A stand-in for a calibration: its 'final error' is the start's, so runs are told apart."""
+    start = calibration_error(T_start, T_ref)
+    return {"start": {"cm": start.translation_cm, "deg": start.rotation_deg},
+            "final": {"cm": start.translation_cm / 10, "deg": start.rotation_deg / 10},
+            "seconds": 0.0, "converged": True, "raised": None}  # fmt: skip
+
+
+def test_rows_gather_each_level_and_variant_in_run_order(monkeypatch):
+    monkeypatch.setattr(bench_real, "one_run", _fake_run)
+    dataset = bench_real.Dataset("fake", lambda run: ([], _T(), {"seed": run % 2}), 3)
+    levels, configs = ["2", "10"], {"dense": None, "global": None}
+    tasks = [("fake", level, i) for level, i in bench_real.dataset_runs(dataset, levels, 4)]
+    finished = list(bench_real.run_tasks({"fake": dataset}, tasks, configs, False, 1, None))
+    done = {tasks[index][1:]: runs for index, runs in reversed(finished)}  # as if they finished out of order
+    row = bench_real.dataset_row(dataset, levels, done, "here")
+    assert list(row["levels"]) == levels
+    for level in levels:
+        for variant in configs:
+            entry = row["levels"][level][variant]
+            assert [r["run"] for r in entry["runs"]] == [0, 1, 2, 3] and entry["where"] == "here"
+            assert [r["seed"] for r in entry["runs"]] == [0, 1, 0, 1]
+    assert (
+        row["levels"]["10"]["dense"]["summary"]["cm_median"]
+        > row["levels"]["2"]["dense"]["summary"]["cm_median"]
+    )
