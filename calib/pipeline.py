@@ -138,10 +138,10 @@ class Calibrator:
                 return None, f"not modelled, points as measured: {why}"
         return scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
 
-    def _pyramid_focals(self) -> list[float]:
-        """The coarser working focal lengths the edge matcher's passes run at first (none for
-        another matcher)."""
-        if not isinstance(self.matcher, EdgeMatcher):
+    def _pyramid_focals(self, frames: int) -> list[float]:
+        """The coarser working focal lengths the edge matcher's passes run at first on ``frames``
+        frames (none for another matcher, or for fewer than ``config.pyramid_min_frames``)."""
+        if not isinstance(self.matcher, EdgeMatcher) or frames < self.config.pyramid_min_frames:
             return []
         finest = self.matcher.config.working_focal_px
         return [f for f in self.config.pyramid_focals_px if f < finest]
@@ -195,7 +195,7 @@ class Calibrator:
         rng = np.random.default_rng(seed)
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
         T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
-        pyramid = self._pyramid_focals()
+        pyramid = self._pyramid_focals(len(frames))
         if pyramid and alternatives:
             # the start is chosen by one pass at the finest level, where a wrong start ends its
             # pass worse aligned than the right one; at 90 px it often ends as well aligned

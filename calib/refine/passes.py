@@ -189,6 +189,14 @@ class CalibrateConfig(BaseModel):
         "(13 without), median 2.50 cm against 4.15; from 10° / 50 cm 19 of 20 (18, one 36 cm off "
         "without); 16 s per calibration against 11",
     )
+    pyramid_min_frames: int = Field(
+        2,
+        ge=1,
+        description="the pyramid runs only on at least this many frames: on one frame its coarse "
+        "levels (KITTI's image 155x47 px at 90 px) hold too few edges and wander (README: single "
+        "real frames from 2° / 10 cm, 4 draws each, KITTI object 000114 4 of 4 within 5 cm / 0.5° "
+        "without it, 1 of 4 with it)",
+    )
     check_below_px: float = Field(
         3.0,
         gt=0,

@@ -71,6 +71,25 @@ def test_matcher_pyramid_reaches_where_the_finest_level_cannot(frames):
     assert all(c["passes"] >= 1 for c in levels[(90.0, 180.0, 1000.0)]) and levels[()] == []
 
 
+def test_one_frame_skips_the_pyramid_unless_allowed(frames):
+    """The pyramid needs ``pyramid_min_frames`` frames: on one frame its coarse levels wander."""
+    T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(1))
+    stages = {}
+    for least in (2, 1):
+        config = FAST.model_copy(
+            update={
+                "frames": 1,
+                "pyramid_focals_px": (90.0, 180.0),
+                "pyramid_min_frames": least,
+                "coarse": FAST.coarse.model_copy(update={"enabled": False}),
+                "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
+            }
+        )
+        result = Calibrator(config=config).calibrate(frames[:1], T_init)
+        stages[least] = [c["working_focal_px"] for c in result.coarse if c["stage"] == "pyramid"]
+    assert stages == {2: [], 1: [90.0, 180.0]}
+
+
 def test_a_map_support_source_is_used_and_checked(frames):
     assert isinstance(UniformSupport(), SupportSource)
     wrong = MapSupport("offline:x", np.ones((3, 3), np.float32))
