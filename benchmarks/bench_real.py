@@ -68,7 +68,10 @@ VARIANTS = {
     "global-contour": "global+contour+dense",
     "global-pyramid": "global+pyramid+dense",  # the packaged calibrate.yaml
     "flow-global": "flow+global+dense",  # the learned matcher (its own pyramid-free passes)
+    "global-flowcoarse-pyramid": "global+flow coarse+pyramid+dense",  # flow passes as one more start
 }
+FLOW_COARSE_PASSES = 2
+"""The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
 PYRAMID_FOCALS_PX = (90.0, 180.0)
 """The ``pyramid`` variants' coarser working focal lengths (``pyramid_focals_px``)."""
 ALL6 = "kitti-raw-0928-all6"
@@ -107,6 +110,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "contour": base.contour.model_copy(update={"enabled": "contour" in stages}),
                 "pyramid_focals_px": PYRAMID_FOCALS_PX if "pyramid" in stages else (),
                 "matcher": "flow" if "flow" in stages else "edge",
+                "flow_coarse_passes": FLOW_COARSE_PASSES if "flowcoarse" in stages else 0,
             }
         )
 
@@ -444,6 +448,11 @@ def main() -> None:
         "seeds is measured honestly on others)",
     )
     parser.add_argument(
+        "--name",
+        default="bench_real",
+        help="write benchmarks/results/NAME.json (a trial kept apart from the README's table)",
+    )
+    parser.add_argument(
         "--jobs",
         type=int,
         default=1,
@@ -475,7 +484,7 @@ def main() -> None:
         "notes": notes,
     }
     clock = time.perf_counter()
-    earlier_path = RESULTS / "bench_real.json"
+    earlier_path = RESULTS / f"{args.name}.json"
     earlier = json.loads(earlier_path.read_text()) if args.merge and earlier_path.is_file() else None
 
     def save() -> Path:
@@ -483,7 +492,7 @@ def main() -> None:
         short keeps the datasets it finished."""
         results["seconds"] = time.perf_counter() - clock
         done = copy.deepcopy(results)
-        return save_results("bench_real", done if earlier is None else merged(copy.deepcopy(earlier), done))
+        return save_results(args.name, done if earlier is None else merged(copy.deepcopy(earlier), done))
 
     with tempfile.TemporaryDirectory() as work:
         selection = Selection(args.only, frozenset(wanted) if wanted else None, synth_seeds)

@@ -57,13 +57,13 @@ def default_matcher(config: CalibrateConfig) -> Matcher:
     return EdgeMatcher(config.edge)
 
 
-def _pyramid_entry(focal: float, passes: list[dict]) -> dict:
-    """A pyramid level's line in ``result.coarse``: its working focal length, how many passes it
-    ran and the median residual (working px) before its first and after its last accepted one."""
+def _passes_entry(stage: str, passes: list[dict], **extra: float) -> dict:
+    """A coarse stage's passes as a line in ``result.coarse``: how many it ran and the median
+    residual (its matcher's working px) before its first and after its last accepted one."""
     accepted = [p for p in passes if p.get("accepted", True)]
     return {
-        "stage": "pyramid",
-        "working_focal_px": focal,
+        "stage": stage,
+        **extra,
         "passes": len(passes),
         "alignment_px": passes[0].get("alignment_px") if passes else None,
         "alignment_after_px": accepted[-1].get("alignment_after_px") if accepted else None,
@@ -79,6 +79,8 @@ class Calibrator:
         config: Stages 2–4 (default: the packaged ``calibrate.yaml``).
         stage1: Stage 1 from motion, used when ``calibrate`` gets no ``T_init`` (default: the
             packaged ``init_calib.yaml``).
+        coarse_matcher: the matcher of ``config.flow_coarse_passes`` (the learned flow matcher,
+            which ``supportnet.Calibrator`` builds); needed only where those are on.
     """
 
     def __init__(
@@ -87,11 +89,18 @@ class Calibrator:
         matcher: Matcher | None = None,
         config: CalibrateConfig | None = None,
         stage1: Stage1Config | None = None,
+        coarse_matcher: Matcher | None = None,
     ) -> None:
         self.config = config if config is not None else load_calibrate_config()
         self.support = support if support is not None else UniformSupport()
         self.matcher = matcher if matcher is not None else default_matcher(self.config)
         self._stage1 = stage1
+        if self.config.flow_coarse_passes and coarse_matcher is None:
+            raise ConfigError(
+                "flow_coarse_passes",
+                "needs the learned flow matcher: use supportnet.Calibrator, or pass coarse_matcher=",
+            )
+        self.coarse_matcher = coarse_matcher
 
     def initial_extrinsic(self, seq: Sequence) -> np.ndarray:
         """Stage 1: ``T⁰ (4, 4)`` from the sequence's motion (raises when motion cannot tell)."""
@@ -194,6 +203,13 @@ class Calibrator:
             coarse_starts = refined
         rng = np.random.default_rng(seed)
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
+        if self.config.flow_coarse_passes:  # the learned matcher's passes from the initial extrinsic
+            flow_config = self.config.model_copy(update={"passes": self.config.flow_coarse_passes})
+            flow = refine_passes(
+                frames, T_init, self.coarse_matcher, self.support, flow_config, rng, timing=held
+            )
+            coarse_starts["flow"] = flow.T_cam_lidar
+            coarse.append(_passes_entry("flow", flow.passes))
         T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
         pyramid = self._pyramid_focals(len(frames))
         if pyramid and alternatives:
@@ -211,7 +227,7 @@ class Calibrator:
                 frames, T_start, self.matcher.with_config(edge), self.support, level_config, rng, timing=held
             )
             T_start = level.T_cam_lidar
-            coarse.append(_pyramid_entry(focal, level.passes))
+            coarse.append(_passes_entry("pyramid", level.passes, working_focal_px=focal))
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
             frames,
             T_start,

@@ -19,7 +19,7 @@ from calib.geometry import perturb as _perturb
 from calib.match.correspondences import Matcher
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
 from calib.support.source import SupportSource
-from supportnet.runtime.matcher_factory import build_matcher
+from supportnet.runtime.matcher_factory import build_matcher, coarse_matcher
 from supportnet.runtime.support_sources import resolve_support
 
 __all__ = ["Calibrator", "OnlineCalibrator", "open_dataset", "perturb"]
@@ -72,7 +72,9 @@ class Calibrator(pipeline.Calibrator):
         config: CalibrateConfig | str | Path | None = None,
     ) -> None:
         support, matcher, config = _parts(support, matcher, config)
-        super().__init__(support=support, matcher=matcher, config=config)
+        super().__init__(
+            support=support, matcher=matcher, config=config, coarse_matcher=coarse_matcher(config)
+        )
 
 
 class OnlineCalibrator(pipeline.OnlineCalibrator):

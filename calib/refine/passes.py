@@ -142,6 +142,16 @@ class CalibrateConfig(BaseModel):
 
     matcher: Literal["edge", "flow"] = "edge"
     flow_model: Path | None = Field(None, description="the flow matcher's ONNX file (None: the shipped one)")
+    flow_coarse_passes: int = Field(
+        0,
+        ge=0,
+        description="passes of the learned flow matcher (`flow_model`) from the initial extrinsic "
+        "(it was trained on errors up to 10° / 50 cm), after the global coarse stage; where they end "
+        "is one more start for the edge passes, taken only where its first edge pass ends best "
+        "aligned (0: none). Its reach "
+        "is wider than the EdgeMatcher's where its training data looks like the rig's (README: the "
+        "synthetic vineyard), and it leads the passes astray on real KITTI, where the probe leaves it",
+    )
     edge: EdgeMatcherConfig = EdgeMatcherConfig()
     support_map: Literal["support", "agreement"] = Field(
         "support",

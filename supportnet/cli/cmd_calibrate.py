@@ -42,7 +42,7 @@ from supportnet.cli.cmd_check import check_line
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, map_picture
-from supportnet.runtime.matcher_factory import build_matcher
+from supportnet.runtime.matcher_factory import build_matcher, coarse_matcher
 from supportnet.runtime.support_sources import offline_maps_folders, parse_supports
 
 __all__ = ["MAX_PERTURBATION", "paired_wins", "parse_init", "run_calibrate"]
@@ -237,7 +237,10 @@ def run_calibrate(
                     seq, picks, config.time_offset.neighbours, deskew_rounds=config.time_offset.deskew_rounds
                 )
             motions = dict(enumerate(found)) if found is not None else why
-    calibrators = {s.name: Calibrator(support=s, matcher=matcher, config=config) for s in supports}
+    coarse = coarse_matcher(config)
+    calibrators = {
+        s.name: Calibrator(support=s, matcher=matcher, config=config, coarse_matcher=coarse) for s in supports
+    }
     results: dict[str, list[CalibrationResult]] = {name: [] for name in calibrators}
     with progress_bar("calibrate", console) as progress:
         task = progress.add_task("calibrate", total=runs * len(supports))

@@ -7,8 +7,9 @@ from pathlib import Path
 from calib.errors import SupportnetError
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher, EdgeMatcherConfig
+from calib.refine.passes import CalibrateConfig
 
-__all__ = ["build_matcher"]
+__all__ = ["build_matcher", "coarse_matcher"]
 
 
 def build_matcher(name: str, edge: EdgeMatcherConfig, flow_model: Path | None = None) -> Matcher:
@@ -21,3 +22,8 @@ def build_matcher(name: str, edge: EdgeMatcherConfig, flow_model: Path | None = 
 
         return FlowMatcher(flow_model or SHIPPED_FLOW_MODEL)
     raise SupportnetError(f"--matcher {name}: unknown matcher (edge or flow)")
+
+
+def coarse_matcher(config: CalibrateConfig) -> Matcher | None:
+    """The learned flow matcher where ``config.flow_coarse_passes`` asks for its passes, else ``None``."""
+    return build_matcher("flow", config.edge, config.flow_model) if config.flow_coarse_passes else None

@@ -9,6 +9,7 @@ import torch
 
 from calib.errors import ConfigError, DataError
 from calib.geometry import calibration_error, perturb
+from calib.match.edge_matcher import EdgeMatcher
 from calib.pipeline import Calibrator, OnlineCalibrator, select_frames
 from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult, OnlineEstimate
@@ -88,6 +89,43 @@ def test_one_frame_skips_the_pyramid_unless_allowed(frames):
         result = Calibrator(config=config).calibrate(frames[:1], T_init)
         stages[least] = [c["working_focal_px"] for c in result.coarse if c["stage"] == "pyramid"]
     assert stages == {2: [], 1: [90.0, 180.0]}
+
+
+class _Recording:
+    """A matcher that records the extrinsics it is asked about (the EdgeMatcher underneath)."""
+
+    name = "recording"
+
+    def __init__(self) -> None:
+        self.inner, self.asked = EdgeMatcher(FAST.edge), []
+
+    def match(self, frame, T_cam_lidar):
+        self.asked.append(np.array(T_cam_lidar))
+        return self.inner.match(frame, T_cam_lidar)
+
+
+def test_flow_coarse_passes_add_a_start_from_the_coarse_matcher(frames):
+    """``flow_coarse_passes`` runs that many passes of the coarse matcher from the initial
+    extrinsic; where they end is one more start, so the probe weighs four starts; without a coarse
+    matcher the config is refused."""
+    config = FAST.model_copy(update={"flow_coarse_passes": 1, "pyramid_focals_px": ()})
+    with pytest.raises(ConfigError, match="flow_coarse_passes"):
+        Calibrator(config=config)
+    T_ref = frames[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(2))
+    coarse = _Recording()
+    result = Calibrator(config=config, coarse_matcher=coarse).calibrate(frames, T_init)
+    assert np.allclose(coarse.asked[0], T_init)  # from the initial extrinsic
+    flow = [c for c in result.coarse if c["stage"] == "flow"]
+    assert len(flow) == 1 and flow[0]["passes"] == 1
+    choice = next(c for c in result.coarse if c["stage"] == "choice")
+    assert set(choice["alignment_after_first_pass_px"]) == {
+        "initial",
+        "global (magnitude)",
+        "global (orientation)",
+        "flow",
+    }
+    assert result.error.translation_cm < 2.5 and result.error.rotation_deg < 0.4
 
 
 def test_a_map_support_source_is_used_and_checked(frames):
