@@ -251,9 +251,12 @@ def synthetic_datasets(seeds: tuple[int, ...] = SYNTH_SEEDS) -> Iterator[Dataset
             yield Dataset(name, frames, SYNTH_FRAMES)
 
 
-def dataset_runs(dataset: Dataset, levels: list[str], runs: int) -> list[tuple[str, int]]:
-    """The ``(level, run)`` pairs of one dataset (level ``0``, the reference, runs once)."""
-    return [(level, i) for level in levels for i in range(1 if level == "0" else runs)]
+def dataset_runs(dataset: Dataset, levels: list[str], runs: int, first: int = 0) -> list[tuple[str, int]]:
+    """The ``(level, run)`` pairs of one dataset, runs ``first`` to ``first + runs - 1`` (level
+    ``0``, the reference, runs once)."""
+    return [
+        (level, i) for level in levels for i in (range(1) if level == "0" else range(first, first + runs))
+    ]
 
 
 def run_all(
@@ -448,6 +451,12 @@ def main() -> None:
         "seeds is measured honestly on others)",
     )
     parser.add_argument(
+        "--first-run",
+        type=int,
+        default=0,
+        help="the first run's number: a benchmark in parts draws the same starts as one run of all",
+    )
+    parser.add_argument(
         "--name",
         default="bench_real",
         help="write benchmarks/results/NAME.json (a trial kept apart from the README's table)",
@@ -500,8 +509,12 @@ def main() -> None:
         by_name = {d.name: d for _, d in datasets}
         # the longest datasets first: with --jobs, the short runs fill the cores at the end
         order = sorted(datasets, key=lambda pd: -pd[1].count) if args.jobs > 1 else datasets
-        tasks = [(d.name, level, i) for _, d in order for level, i in dataset_runs(d, levels, args.runs)]
-        left = {d.name: len(dataset_runs(d, levels, args.runs)) for _, d in datasets}
+        tasks = [
+            (d.name, level, i)
+            for _, d in order
+            for level, i in dataset_runs(d, levels, args.runs, args.first_run)
+        ]
+        left = {d.name: len(dataset_runs(d, levels, args.runs, args.first_run)) for _, d in datasets}
         done: dict[str, dict] = {d.name: {} for _, d in datasets}
         part_of = {d.name: part for part, d in datasets}
         where = (

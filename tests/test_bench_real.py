@@ -137,3 +137,10 @@ def test_rows_gather_each_level_and_variant_in_run_order(monkeypatch):
         row["levels"]["10"]["dense"]["summary"]["cm_median"]
         > row["levels"]["2"]["dense"]["summary"]["cm_median"]
     )
+
+
+def test_a_benchmark_in_parts_draws_the_runs_of_one_whole_run():
+    dataset = bench_real.Dataset("fake", lambda run: ([], _T(), {}), 1)
+    whole = bench_real.dataset_runs(dataset, ["0", "2"], 6)
+    parts = bench_real.dataset_runs(dataset, ["2"], 3) + bench_real.dataset_runs(dataset, ["2"], 3, first=3)
+    assert whole == [("0", 0)] + parts
