@@ -27,6 +27,7 @@ and its message is kept. Prints a table, one progress line per run to stderr, an
 
     .venv/bin/python benchmarks/bench_real.py [--runs 20] [--levels 2,5,10] [--only real|synthetic]
         [--fixtures NAME,...] [--variants global,global-pyramid] [--shell]
+        [--jobs N: runs side by side on a machine of many cores] [--first-run K] [--name NAME]
 """
 
 from __future__ import annotations
