@@ -252,9 +252,9 @@ def synthetic_datasets(seeds: tuple[int, ...] = SYNTH_SEEDS) -> Iterator[Dataset
             yield Dataset(name, frames, SYNTH_FRAMES)
 
 
-def dataset_runs(dataset: Dataset, levels: list[str], runs: int, first: int = 0) -> list[tuple[str, int]]:
-    """The ``(level, run)`` pairs of one dataset, runs ``first`` to ``first + runs - 1`` (level
-    ``0``, the reference, runs once)."""
+def level_runs(levels: list[str], runs: int, first: int = 0) -> list[tuple[str, int]]:
+    """The ``(level, run)`` pairs each dataset runs: runs ``first`` to ``first + runs - 1`` (level
+    ``0``, the reference, once)."""
     return [
         (level, i) for level in levels for i in (range(1) if level == "0" else range(first, first + runs))
     ]
@@ -510,12 +510,9 @@ def main() -> None:
         by_name = {d.name: d for _, d in datasets}
         # the longest datasets first: with --jobs, the short runs fill the cores at the end
         order = sorted(datasets, key=lambda pd: -pd[1].count) if args.jobs > 1 else datasets
-        tasks = [
-            (d.name, level, i)
-            for _, d in order
-            for level, i in dataset_runs(d, levels, args.runs, args.first_run)
-        ]
-        left = {d.name: len(dataset_runs(d, levels, args.runs, args.first_run)) for _, d in datasets}
+        pairs = level_runs(levels, args.runs, args.first_run)
+        tasks = [(d.name, level, i) for _, d in order for level, i in pairs]
+        left = {d.name: len(pairs) for _, d in datasets}  # runs of each dataset still to finish
         done: dict[str, dict] = {d.name: {} for _, d in datasets}
         part_of = {d.name: part for part, d in datasets}
         where = (
@@ -528,16 +525,15 @@ def main() -> None:
         print(HEADER, flush=True)
         for index, variant_runs in run_tasks(by_name, tasks, configs, args.shell, args.jobs, selection):
             name, level, i = tasks[index]
-            dataset = by_name[name]
             done[name][(level, i)] = variant_runs
             for variant, run in variant_runs.items():
                 progress["done"] += 1
-                console.print(progress_line(dataset.name, level, variant, run, progress))
-            left[dataset.name] -= 1
-            if left[dataset.name] == 0:
-                row = dataset_row(dataset, levels, done[dataset.name], where)
-                results[part_of[dataset.name]][dataset.name] = row
-                print("\n".join(table_lines(dataset.name, row)), flush=True)
+                console.print(progress_line(name, level, variant, run, progress))
+            left[name] -= 1
+            if left[name] == 0:
+                row = dataset_row(by_name[name], levels, done[name], where)
+                results[part_of[name]][name] = row
+                print("\n".join(table_lines(name, row)), flush=True)
                 save()
     for name, note in notes.items():
         print(f"{name}: {note}")

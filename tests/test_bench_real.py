@@ -123,7 +123,7 @@ def test_rows_gather_each_level_and_variant_in_run_order(monkeypatch):
     monkeypatch.setattr(bench_real, "one_run", _fake_run)
     dataset = bench_real.Dataset("fake", lambda run: ([], _T(), {"seed": run % 2}), 3)
     levels, configs = ["2", "10"], {"dense": None, "global": None}
-    tasks = [("fake", level, i) for level, i in bench_real.dataset_runs(dataset, levels, 4)]
+    tasks = [("fake", level, i) for level, i in bench_real.level_runs(levels, 4)]
     finished = list(bench_real.run_tasks({"fake": dataset}, tasks, configs, False, 1, None))
     done = {tasks[index][1:]: runs for index, runs in reversed(finished)}  # as if they finished out of order
     row = bench_real.dataset_row(dataset, levels, done, "here")
@@ -140,7 +140,6 @@ def test_rows_gather_each_level_and_variant_in_run_order(monkeypatch):
 
 
 def test_a_benchmark_in_parts_draws_the_runs_of_one_whole_run():
-    dataset = bench_real.Dataset("fake", lambda run: ([], _T(), {}), 1)
-    whole = bench_real.dataset_runs(dataset, ["0", "2"], 6)
-    parts = bench_real.dataset_runs(dataset, ["2"], 3) + bench_real.dataset_runs(dataset, ["2"], 3, first=3)
+    whole = bench_real.level_runs(["0", "2"], 6)
+    parts = bench_real.level_runs(["2"], 3) + bench_real.level_runs(["2"], 3, first=3)
     assert whole == [("0", 0)] + parts
