@@ -70,11 +70,15 @@ VARIANTS = {
     "global-pyramid": "global+pyramid+dense",  # the packaged calibrate.yaml
     "flow-global": "flow+global+dense",  # the learned matcher (its own pyramid-free passes)
     "global-flowcoarse-pyramid": "global+flow coarse+pyramid+dense",  # flow passes as one more start
+    "global-pyramid-fullres": "global+pyramid+dense at full resolution",  # finest passes at 721.5 px
 }
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
 PYRAMID_FOCALS_PX = (90.0, 180.0)
 """The ``pyramid`` variants' coarser working focal lengths (``pyramid_focals_px``)."""
+FULLRES_FOCAL_PX = 721.5
+"""The ``fullres`` variants' finest working focal length (KITTI's native): the packaged finest
+level becomes one more pyramid level before it, and the probe of the starts runs there."""
 ALL6 = "kitti-raw-0928-all6"
 KITTI_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
 ZED_HALF = {"width": 960, "height": 540, "fx": 527.0, "fy": 527.0, "cx": 479.5, "cy": 269.5}
@@ -105,11 +109,19 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
 
     def switched(name: str) -> CalibrateConfig:
         stages = name.split("-")
+        pyramid = PYRAMID_FOCALS_PX if "pyramid" in stages else ()
+        edge = base.edge
+        probe = base.probe_focal_px
+        if "fullres" in stages:
+            pyramid, probe = (*pyramid, edge.working_focal_px), edge.working_focal_px
+            edge = edge.model_copy(update={"working_focal_px": FULLRES_FOCAL_PX})
         return base.model_copy(
             update={
                 "coarse": base.coarse.model_copy(update={"enabled": "global" in stages}),
                 "contour": base.contour.model_copy(update={"enabled": "contour" in stages}),
-                "pyramid_focals_px": PYRAMID_FOCALS_PX if "pyramid" in stages else (),
+                "pyramid_focals_px": pyramid,
+                "probe_focal_px": probe,
+                "edge": edge,
                 "matcher": "flow" if "flow" in stages else "edge",
                 "flow_coarse_passes": FLOW_COARSE_PASSES if "flowcoarse" in stages else 0,
             }

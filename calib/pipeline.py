@@ -147,6 +147,12 @@ class Calibrator:
                 return None, f"not modelled, points as measured: {why}"
         return scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
 
+    def _at_focal(self, focal: float) -> tuple[Matcher, CalibrateConfig]:
+        """The edge matcher at working focal length ``focal`` (sharing this one's scan features)
+        and the config that names it."""
+        edge = self.matcher.config.model_copy(update={"working_focal_px": focal})
+        return self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
+
     def _pyramid_focals(self, frames: int) -> list[float]:
         """The coarser working focal lengths the edge matcher's passes run at first on ``frames``
         frames (none for another matcher, or for fewer than ``config.pyramid_min_frames``)."""
@@ -213,19 +219,18 @@ class Calibrator:
         T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
         pyramid = self._pyramid_focals(len(frames))
         if pyramid and alternatives:
-            # the start is chosen by one pass at the finest level, where a wrong start ends its
-            # pass worse aligned than the right one; at 90 px it often ends as well aligned
-            one_pass = self.config.model_copy(update={"passes": 1})
-            probed = refine_passes(
-                frames, T_start, self.matcher, self.support, one_pass, rng, alternatives, held
-            )
+            # the start is chosen by one pass at the finest level (or `probe_focal_px`), where a
+            # wrong start ends its pass worse aligned than the right one; at 90 px it often ends
+            # as well aligned
+            matcher, config = self.matcher, self.config
+            if self.config.probe_focal_px is not None:
+                matcher, config = self._at_focal(self.config.probe_focal_px)
+            one_pass = config.model_copy(update={"passes": 1})
+            probed = refine_passes(frames, T_start, matcher, self.support, one_pass, rng, alternatives, held)
             T_start, alternatives = probed.T_cam_lidar, []
         for focal in pyramid:  # the edge matcher coarse to fine, δt held
-            edge = self.matcher.config.model_copy(update={"working_focal_px": focal})
-            level_config = self.config.model_copy(update={"edge": edge})
-            level = refine_passes(
-                frames, T_start, self.matcher.with_config(edge), self.support, level_config, rng, timing=held
-            )
+            matcher, level_config = self._at_focal(focal)
+            level = refine_passes(frames, T_start, matcher, self.support, level_config, rng, timing=held)
             T_start = level.T_cam_lidar
             coarse.append(_passes_entry("pyramid", level.passes, working_focal_px=focal))
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes

@@ -198,6 +198,13 @@ class CalibrateConfig(BaseModel):
         "(13 without), median 2.50 cm against 4.15; from 10° / 50 cm 19 of 20 (18, one 36 cm off "
         "without); 16 s per calibration against 11",
     )
+    probe_focal_px: PositiveFloat | None = Field(
+        None,
+        description="working focal length (px) of the one pass that chooses the start (initial or "
+        "coarse) before the pyramid; null: the finest, `edge.working_focal_px`. Where the finest "
+        "level is full resolution (721.5 px on KITTI) a probe at 360 px costs a quarter as much and "
+        "still tells a wrong start from the right one",
+    )
     pyramid_min_frames: int = Field(
         2,
         ge=1,
