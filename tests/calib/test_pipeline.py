@@ -91,6 +91,36 @@ def test_one_frame_skips_the_pyramid_unless_allowed(frames):
     assert stages == {2: [], 1: [90.0, 180.0]}
 
 
+def test_the_probe_of_the_starts_runs_at_probe_focal_px(frames, monkeypatch):
+    """The one pass that chooses among the starts matches at ``probe_focal_px`` (default: the
+    finest working focal length), then the pyramid and the finest passes follow."""
+    focals = []
+    match = EdgeMatcher.match
+
+    def recording(self, frame, T_cam_lidar):
+        focals.append(self.config.working_focal_px)
+        return match(self, frame, T_cam_lidar)
+
+    monkeypatch.setattr(EdgeMatcher, "match", recording)
+    T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(3))
+    first = {}
+    for probe in (None, 180.0):
+        focals.clear()
+        config = FAST.model_copy(
+            update={
+                "passes": 1,
+                "pyramid_focals_px": (90.0,),
+                "probe_focal_px": probe,
+                "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
+            }
+        )
+        result = Calibrator(config=config).calibrate(frames, T_init)
+        first[probe] = focals[0]
+        assert focals[-1] == 360.0 and 90.0 in focals  # the pyramid, then the finest passes
+        assert next(c for c in result.coarse if c["stage"] == "choice")
+    assert first == {None: 360.0, 180.0: 180.0}
+
+
 class _Recording:
     """A matcher that records the extrinsics it is asked about (the EdgeMatcher underneath)."""
 
