@@ -18,6 +18,7 @@ import torch
 from calib.data.classes import RIGID_CLASSES
 from calib.errors import DataError
 from supportnet.nets.flow_net import LIDAR_CHANNELS, FlowConfig, FlowNet
+from train.gather import gathered
 from train.support_module import one_cycle, photometric, run_progress
 from train.train_config import FlowAugmentConfig, OptimConfig
 
@@ -118,7 +119,7 @@ class FlowModule(L.LightningModule):
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         flows = self(batch["image"], batch["lidar"], all_iterations=True)
         loss = sequence_loss(flows, batch["flow"], batch["valid"], self.hparams.gamma)
-        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True)
+        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, sync_dist=True)
         return loss
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
@@ -131,7 +132,7 @@ class FlowModule(L.LightningModule):
     def on_validation_epoch_end(self) -> None:
         if not self._val:
             return
-        epe, zero, label = np.concatenate(self._val, axis=1)
+        epe, zero, label = gathered(np.concatenate(self._val, axis=1))
         self._val.clear()
         rigid, foliage = np.isin(label, list(RIGID_CLASSES)), np.isin(label, list(FOLIAGE_CLASSES))
         self.log("val/epe", float(epe.mean()), prog_bar=True)

@@ -18,6 +18,7 @@ from lightning.pytorch.callbacks import Timer
 
 from supportnet.nets.map_targets import agreement_scores
 from supportnet.nets.support_unet import ModelConfig, SupportUNet
+from train.gather import gathered
 from train.train_config import AugmentConfig, OptimConfig
 
 __all__ = ["SupportModule", "one_cycle", "one_cycle_factor", "photometric", "run_progress", "weighted_bce"]
@@ -70,12 +71,13 @@ class SupportModule(L.LightningModule):
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         loss = weighted_bce(self(batch["image"]), batch["target"], batch["weight"])
-        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True)
+        self.log("train/loss", loss, prog_bar=True, on_step=True, on_epoch=True, sync_dist=True)
         return loss
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         logits = self(batch["image"])
-        self.log("val/loss", weighted_bce(logits, batch["target"], batch["weight"]), on_epoch=True)
+        loss = weighted_bce(logits, batch["target"], batch["weight"])
+        self.log("val/loss", loss, on_epoch=True, sync_dist=True)
         pred, target, weight = (
             t.flatten().cpu().numpy() for t in (logits.sigmoid(), batch["target"], batch["weight"])
         )
@@ -86,7 +88,7 @@ class SupportModule(L.LightningModule):
     def on_validation_epoch_end(self) -> None:
         if not self._val:
             return
-        pred, target, weight = np.concatenate(self._val, axis=1)
+        pred, target, weight = gathered(np.concatenate(self._val, axis=1))
         self._val.clear()
         scores = agreement_scores(pred, target, weight)
         for name in ("mae", "pearson", "spearman"):
