@@ -24,12 +24,13 @@ and writes ``benchmarks/results/bench_time_offset.json``.
     .venv/bin/python benchmarks/bench_time_offset.py [--runs 4] [--worlds urban,vineyard]
         [--offsets-ms default|-50,-20,0,5,20,50] [--level 2]
         [--variants "off,odometry,no restarts,true motion"]
-        [--name bench_time_offset]
+        [--name bench_time_offset] [--first-run K --threads 1: a part of the runs, side by side]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import time
 import zlib
@@ -37,7 +38,7 @@ import zlib
 import numpy as np
 import torch
 from bench_real import LEVELS, SYNTH_CAMERAS, draw_start
-from results_io import save_results
+from results_io import RESULTS, save_results
 from rich.console import Console
 
 from calib.geometry import calibration_error
@@ -118,6 +119,33 @@ def _f(value: float | None, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
+def print_table(rows: list[dict]) -> None:
+    print(
+        f"{'world':9} {'δt ms':>6} {'variant':14} {'runs':>4} {'success':>7} {'cm med':>7} {'cm p90':>7} "
+        f"{'° med':>6} {'° p90':>6} {'|δt err| med':>12} {'p90':>6} {'≤1 ms':>6} {'s':>5}"
+    )
+    for row in rows:
+        print(
+            f"{row['world']:9} {row['offset_ms']:6g} {row['variant']:14} {row['runs']:4d} "
+            f"{row['success']:7.0%} "
+            f"{row['cm_median']:7.2f} {row['cm_p90']:7.2f} {row['deg_median']:6.3f} {row['deg_p90']:6.3f} "
+            f"{_f(row['dt_error_ms_median'], '12.2f')} {_f(row['dt_error_ms_p90'], '6.2f')} "
+            f"{_f(row['dt_within_1ms'], '6.0%')} {row['seconds_median']:5.0f}"
+        )
+
+
+def joined(parts: list[list[dict]]) -> list[dict]:
+    """The rows of several parts of one benchmark (``--first-run``) as one: each world, offset and
+    variant's runs in the parts' order, summarised again."""
+    rows: dict[tuple, dict] = {}
+    for part in parts:
+        for row in part:
+            key = (row["world"], row["offset_ms"], row["variant"])
+            rows.setdefault(key, {"world": key[0], "offset_ms": key[1], "variant": key[2], "per_run": []})
+            rows[key]["per_run"] += row["per_run"]
+    return [{**row, **summary(row["per_run"])} for row in rows.values()]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -128,7 +156,38 @@ def main() -> None:
     parser.add_argument("--level", default="2", choices=sorted(LEVELS))
     parser.add_argument("--variants", default=",".join(VARIANTS))
     parser.add_argument("--name", default="bench_time_offset", help="results/NAME.json")
+    parser.add_argument(
+        "--first-run",
+        type=int,
+        default=0,
+        help="the first run's number: runs in parts (several processes side by side) draw the same "
+        "starts as one run of all",
+    )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="torch and OpenCV threads (1 where processes run side by side)",
+    )
+    parser.add_argument(
+        "--join",
+        default=None,
+        help="comma-separated results/NAME.json of parts (--first-run) to join into --name; runs nothing",
+    )
     args = parser.parse_args()
+    if args.join is not None:
+        parts = [json.loads((RESULTS / f"{n}.json").read_text()) for n in args.join.split(",")]
+        rows = joined([p["rows"] for p in parts])
+        print_table(rows)
+        names = args.join.split(",")
+        out = save_results(args.name, {**parts[0], "first_run": 0, "parts": names, "rows": rows})
+        console.print(f"wrote {out}")
+        return
+    if args.threads is not None:
+        import cv2
+
+        torch.set_num_threads(args.threads)
+        cv2.setNumThreads(args.threads)
     offsets = [None] if args.offsets_ms == "default" else [float(v) / 1e3 for v in args.offsets_ms.split(",")]
     variants = args.variants.split(",")
     rows = []
@@ -137,7 +196,7 @@ def main() -> None:
             frames, T_ref, truth, offset_s = render(world, offset)
             for variant in variants:
                 runs = []
-                for run in range(args.runs):
+                for run in range(args.first_run, args.first_run + args.runs):
                     runs.append(one_run(frames, T_ref, truth, offset_s, variant, args.level, run))
                     r = runs[-1]
                     console.print(
@@ -154,20 +213,16 @@ def main() -> None:
                         "per_run": runs,
                     }
                 )
-    print(
-        f"{'world':9} {'δt ms':>6} {'variant':14} {'runs':>4} {'success':>7} {'cm med':>7} {'cm p90':>7} "
-        f"{'° med':>6} {'° p90':>6} {'|δt err| med':>12} {'p90':>6} {'≤1 ms':>6} {'s':>5}"
-    )
-    for row in rows:
-        print(
-            f"{row['world']:9} {row['offset_ms']:6g} {row['variant']:14} {row['runs']:4d} "
-            f"{row['success']:7.0%} "
-            f"{row['cm_median']:7.2f} {row['cm_p90']:7.2f} {row['deg_median']:6.3f} {row['deg_p90']:6.3f} "
-            f"{_f(row['dt_error_ms_median'], '12.2f')} {_f(row['dt_error_ms_p90'], '6.2f')} "
-            f"{_f(row['dt_within_1ms'], '6.0%')} {row['seconds_median']:5.0f}"
-        )
+    print_table(rows)
     out = save_results(
-        args.name, {"machine": platform.machine(), "level": args.level, "seed": SEED, "rows": rows}
+        args.name,
+        {
+            "machine": platform.machine(),
+            "level": args.level,
+            "seed": SEED,
+            "first_run": args.first_run,
+            "rows": rows,
+        },
     )
     console.print(f"wrote {out}")
 

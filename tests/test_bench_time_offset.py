@@ -1,0 +1,31 @@
+"""benchmarks/bench_time_offset.py's parts joined into one benchmark, without running a calibration."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import bench_time_offset  # noqa: E402
+
+
+def _run(cm: float, dt_error_ms: float | None = 0.5) -> dict:
+    return {"translation_cm": cm, "rotation_deg": 0.1, "time_offset_error_ms": dt_error_ms, "seconds": 10.0}
+
+
+def _row(world: str, variant: str, runs: list[dict]) -> dict:
+    return {"world": world, "offset_ms": 5.0, "variant": variant, "per_run": runs, "runs": len(runs)}
+
+
+def test_parts_join_run_by_run_and_are_summarised_again():
+    first = [_row("urban", "odometry", [_run(1.0), _run(3.0)]), _row("vineyard", "odometry", [_run(1.5)])]
+    second = [_row("urban", "odometry", [_run(1.5, 2.0), _run(4.0)])]
+    rows = bench_time_offset.joined([first, second])
+    urban = next(r for r in rows if r["world"] == "urban")
+    assert [r["translation_cm"] for r in urban["per_run"]] == [1.0, 3.0, 1.5, 4.0]
+    assert urban["runs"] == 4 and urban["success"] == 0.5
+    assert urban["cm_median"] == pytest.approx(2.25) and urban["dt_within_1ms"] == 0.75
+    assert next(r for r in rows if r["world"] == "vineyard")["runs"] == 1
