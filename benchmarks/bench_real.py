@@ -71,6 +71,8 @@ VARIANTS = {
     "flow-global": "flow+global+dense",  # the learned matcher (its own pyramid-free passes)
     "global-flowcoarse-pyramid": "global+flow coarse+pyramid+dense",  # flow passes as one more start
     "global-pyramid-fullres": "global+pyramid+dense at full resolution",  # finest passes at 721.5 px
+    "global-pyramid-iw25": "global+pyramid+dense, intensity edges 0.25",  # edge.intensity_weight 0.5 -> 0.25
+    "global-pyramid-fullres-iw25": "global+pyramid+dense at full resolution, intensity edges 0.25",
 }
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
@@ -115,6 +117,8 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
         if "fullres" in stages:
             pyramid, probe = (*pyramid, edge.working_focal_px), edge.working_focal_px
             edge = edge.model_copy(update={"working_focal_px": FULLRES_FOCAL_PX})
+        if "iw25" in stages:
+            edge = edge.model_copy(update={"intensity_weight": 0.25})
         return base.model_copy(
             update={
                 "coarse": base.coarse.model_copy(update={"enabled": "global" in stages}),

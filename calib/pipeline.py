@@ -153,12 +153,14 @@ class Calibrator:
         edge = self.matcher.config.model_copy(update={"working_focal_px": focal})
         return self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
 
-    def _pyramid_focals(self, frames: int) -> list[float]:
+    def _pyramid_focals(self, frames: list[Frame]) -> list[float]:
         """The coarser working focal lengths the edge matcher's passes run at first on ``frames``
-        frames (none for another matcher, or for fewer than ``config.pyramid_min_frames``)."""
-        if not isinstance(self.matcher, EdgeMatcher) or frames < self.config.pyramid_min_frames:
+        (none for another matcher, or on fewer than ``config.pyramid_min_frames``): those below
+        the finest level's, which is the matcher's working focal length or the camera's own where
+        that is shorter (images are never resampled up)."""
+        if not isinstance(self.matcher, EdgeMatcher) or len(frames) < self.config.pyramid_min_frames:
             return []
-        finest = self.matcher.config.working_focal_px
+        finest = min(self.matcher.config.working_focal_px, float(frames[0].K[0, 0]))
         return [f for f in self.config.pyramid_focals_px if f < finest]
 
     def calibrate(
@@ -217,7 +219,7 @@ class Calibrator:
             coarse_starts["flow"] = flow.T_cam_lidar
             coarse.append(_passes_entry("flow", flow.passes))
         T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
-        pyramid = self._pyramid_focals(len(frames))
+        pyramid = self._pyramid_focals(frames)
         if pyramid and alternatives:
             # the start is chosen by one pass at the finest level (or `probe_focal_px`), where a
             # wrong start ends its pass worse aligned than the right one; at 90 px it often ends
