@@ -72,6 +72,23 @@ def test_matcher_pyramid_reaches_where_the_finest_level_cannot(frames):
     assert all(c["passes"] >= 1 for c in levels[(90.0, 180.0, 1000.0)]) and levels[()] == []
 
 
+def test_pyramid_levels_at_or_above_the_cameras_focal_length_are_skipped(frames):
+    """A working focal length above the camera's (360.8 px) leaves the image as it is, so a
+    pyramid level between the two would be the finest level again."""
+    T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(4))
+    config = FAST.model_copy(
+        update={
+            "passes": 1,
+            "edge": FAST.edge.model_copy(update={"working_focal_px": 1000.0}),
+            "pyramid_focals_px": (90.0, 500.0),
+            "coarse": FAST.coarse.model_copy(update={"enabled": False}),
+            "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
+        }
+    )
+    result = Calibrator(config=config).calibrate(frames, T_init)
+    assert [c["working_focal_px"] for c in result.coarse if c["stage"] == "pyramid"] == [90.0]
+
+
 def test_one_frame_skips_the_pyramid_unless_allowed(frames):
     """The pyramid needs ``pyramid_min_frames`` frames: on one frame its coarse levels wander."""
     T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(1))
