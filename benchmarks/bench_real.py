@@ -73,6 +73,8 @@ VARIANTS = {
     "global-pyramid-fullres": "global+pyramid+dense at full resolution",  # finest passes at 721.5 px
     "global-pyramid-iw25": "global+pyramid+dense, intensity edges 0.25",  # edge.intensity_weight 0.5 -> 0.25
     "global-pyramid-fullres-iw25": "global+pyramid+dense at full resolution, intensity edges 0.25",
+    "global-pyramid-fullres-iwfine": "global+pyramid+dense at full resolution, its intensity edges 0.25",
+    "global-pyramid-fullres-iwfine360": "global+pyramid+dense at full resolution, 360 px on: intensity 0.25",
 }
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
@@ -119,12 +121,16 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
             edge = edge.model_copy(update={"working_focal_px": FULLRES_FOCAL_PX})
         if "iw25" in stages:
             edge = edge.model_copy(update={"intensity_weight": 0.25})
+        fine_weight = 0.25 if "iwfine" in stages or "iwfine360" in stages else None
+        fine_from = 360.0 if "iwfine360" in stages else None
         return base.model_copy(
             update={
                 "coarse": base.coarse.model_copy(update={"enabled": "global" in stages}),
                 "contour": base.contour.model_copy(update={"enabled": "contour" in stages}),
                 "pyramid_focals_px": pyramid,
                 "probe_focal_px": probe,
+                "fine_intensity_weight": fine_weight,
+                "fine_from_px": fine_from,
                 "edge": edge,
                 "matcher": "flow" if "flow" in stages else "edge",
                 "flow_coarse_passes": FLOW_COARSE_PASSES if "flowcoarse" in stages else 0,

@@ -147,10 +147,13 @@ class Calibrator:
                 return None, f"not modelled, points as measured: {why}"
         return scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
 
-    def _at_focal(self, focal: float) -> tuple[Matcher, CalibrateConfig]:
+    def _at_focal(self, focal: float, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:
         """The edge matcher at working focal length ``focal`` (sharing this one's scan features)
-        and the config that names it."""
-        edge = self.matcher.config.model_copy(update={"working_focal_px": focal})
+        and the config that names it; ``fine``: with ``config.fine_intensity_weight`` where set."""
+        update: dict = {"working_focal_px": focal}
+        if fine and self.config.fine_intensity_weight is not None:
+            update["intensity_weight"] = self.config.fine_intensity_weight
+        edge = self.matcher.config.model_copy(update=update)
         return self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
 
     def _pyramid_focals(self, frames: list[Frame]) -> list[float]:
@@ -231,16 +234,20 @@ class Calibrator:
             probed = refine_passes(frames, T_start, matcher, self.support, one_pass, rng, alternatives, held)
             T_start, alternatives = probed.T_cam_lidar, []
         for focal in pyramid:  # the edge matcher coarse to fine, δt held
-            matcher, level_config = self._at_focal(focal)
+            fine = self.config.fine_from_px is not None and focal >= self.config.fine_from_px
+            matcher, level_config = self._at_focal(focal, fine)
             level = refine_passes(frames, T_start, matcher, self.support, level_config, rng, timing=held)
             T_start = level.T_cam_lidar
             coarse.append(_passes_entry("pyramid", level.passes, working_focal_px=focal))
+        finest, finest_config = self.matcher, self.config
+        if self.config.fine_intensity_weight is not None and isinstance(self.matcher, EdgeMatcher):
+            finest, finest_config = self._at_focal(self.matcher.config.working_focal_px, fine=True)
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
             frames,
             T_start,
-            self.matcher,
+            finest,
             self.support,
-            self.config,
+            finest_config,
             rng,
             alternatives=alternatives,
             timing=timing,

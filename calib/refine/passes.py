@@ -205,6 +205,18 @@ class CalibrateConfig(BaseModel):
         "level is full resolution (721.5 px on KITTI) a probe at 360 px costs a quarter as much and "
         "still tells a wrong start from the right one",
     )
+    fine_intensity_weight: NonNegativeFloat | None = Field(
+        None,
+        description="`edge.intensity_weight` of the finest level's passes alone (null: the same); "
+        "the probe and the pyramid keep `edge.intensity_weight`. The intensity edges hold the "
+        "basin at the coarse levels, and at the finest the stripes of the scan lines in them lean "
+        "(README: six KITTI frames at full resolution)",
+    )
+    fine_from_px: PositiveFloat | None = Field(
+        None,
+        description="the pyramid levels at or above this working focal length (px) use "
+        "`fine_intensity_weight` too (null: the finest level alone)",
+    )
     pyramid_min_frames: int = Field(
         2,
         ge=1,

@@ -72,6 +72,32 @@ def test_matcher_pyramid_reaches_where_the_finest_level_cannot(frames):
     assert all(c["passes"] >= 1 for c in levels[(90.0, 180.0, 1000.0)]) and levels[()] == []
 
 
+def test_fine_intensity_weight_holds_from_fine_from_px_and_at_the_finest_level(frames, monkeypatch):
+    """``fine_intensity_weight`` replaces ``edge.intensity_weight`` at the finest level and at the
+    pyramid levels from ``fine_from_px`` on; the probe and the coarser levels keep the edge's."""
+    weights = {}
+    match = EdgeMatcher.match
+
+    def recording(self, frame, T_cam_lidar):
+        weights.setdefault(self.config.working_focal_px, set()).add(self.config.intensity_weight)
+        return match(self, frame, T_cam_lidar)
+
+    monkeypatch.setattr(EdgeMatcher, "match", recording)
+    T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(5))
+    config = FAST.model_copy(
+        update={
+            "passes": 1,
+            "pyramid_focals_px": (90.0, 180.0),
+            "probe_focal_px": 180.0,
+            "fine_intensity_weight": 0.25,
+            "fine_from_px": 180.0,
+            "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
+        }
+    )
+    Calibrator(config=config).calibrate(frames, T_init)
+    assert weights == {90.0: {0.5}, 180.0: {0.5, 0.25}, 360.0: {0.25}}  # 180: the probe, then the level
+
+
 def test_pyramid_levels_at_or_above_the_cameras_focal_length_are_skipped(frames):
     """A working focal length above the camera's (360.8 px) leaves the image as it is, so a
     pyramid level between the two would be the finest level again."""
