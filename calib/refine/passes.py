@@ -191,9 +191,10 @@ class CalibrateConfig(BaseModel):
     pyramid_focals_px: tuple[PositiveFloat, ...] = Field(
         (90.0, 180.0),
         description="run the edge matcher's passes first at these coarser working focal lengths (px, "
-        "coarse to fine; those at or above `edge.working_focal_px` are skipped; empty: none), each "
-        "going on from the last, after the start (initial or coarse) is chosen by one pass at the "
-        "finest level: its windows and search range, in working pixels, span 4x the angles at 90 px. "
+        "coarse to fine; those at or above `edge.working_focal_px` or the camera's own focal length "
+        "are skipped; empty: none), each going on from the last, after the start (initial or "
+        "coarse) is chosen by one pass at the finest level (or `probe_focal_px`): its windows and "
+        "search range, in working pixels, span 4x the angles at 90 px. "
         "Six real KITTI frames, 20 draws each (README): from 2° / 10 cm 19 of 20 within 5 cm / 0.5° "
         "(13 without), median 2.50 cm against 4.15; from 10° / 50 cm 19 of 20 (18, one 36 cm off "
         "without); 16 s per calibration against 11",
@@ -207,10 +208,11 @@ class CalibrateConfig(BaseModel):
     )
     fine_intensity_weight: NonNegativeFloat | None = Field(
         None,
-        description="`edge.intensity_weight` of the finest level's passes alone (null: the same); "
-        "the probe and the pyramid keep `edge.intensity_weight`. The intensity edges hold the "
-        "basin at the coarse levels, and at the finest the stripes of the scan lines in them lean "
-        "(README: six KITTI frames at full resolution)",
+        description="`edge.intensity_weight` of the finest level's passes (null: the same), and of "
+        "the pyramid levels from `fine_from_px` on; the probe and the coarser levels keep "
+        "`edge.intensity_weight`. The intensity edges hold the basin at the coarse levels, and at "
+        "the fine ones the stripes of the scan lines in them lean (README: six KITTI frames at "
+        "full resolution; experimental)",
     )
     fine_from_px: PositiveFloat | None = Field(
         None,
