@@ -83,6 +83,9 @@ PYRAMID_FOCALS_PX = (90.0, 180.0)
 FULLRES_FOCAL_PX = 721.5
 """The ``fullres`` variants' finest working focal length (KITTI's native): the packaged finest
 level becomes one more pyramid level before it, and the probe of the starts runs there."""
+LOW_INTENSITY_WEIGHT = 0.25
+"""The ``iw25`` / ``iwfine`` variants' intensity edge weight (``edge.intensity_weight`` is 0.5):
+everywhere, at the finest level, or (``iwfine360``) from the packaged finest level, 360 px, on."""
 ALL6 = "kitti-raw-0928-all6"
 KITTI_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
 ZED_HALF = {"width": 960, "height": 540, "fx": 527.0, "fy": 527.0, "cx": 479.5, "cy": 269.5}
@@ -120,9 +123,9 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
             pyramid, probe = (*pyramid, edge.working_focal_px), edge.working_focal_px
             edge = edge.model_copy(update={"working_focal_px": FULLRES_FOCAL_PX})
         if "iw25" in stages:
-            edge = edge.model_copy(update={"intensity_weight": 0.25})
-        fine_weight = 0.25 if "iwfine" in stages or "iwfine360" in stages else None
-        fine_from = 360.0 if "iwfine360" in stages else None
+            edge = edge.model_copy(update={"intensity_weight": LOW_INTENSITY_WEIGHT})
+        fine_weight = LOW_INTENSITY_WEIGHT if "iwfine" in stages or "iwfine360" in stages else None
+        fine_from = base.edge.working_focal_px if "iwfine360" in stages else None
         return base.model_copy(
             update={
                 "coarse": base.coarse.model_copy(update={"enabled": "global" in stages}),
@@ -344,12 +347,17 @@ _WORKER: dict = {}
 """A ``--jobs`` worker's datasets by name, its configs and its scratch folder."""
 
 
-def _worker_init(selection: Selection, variants: list[str]) -> None:
-    """Load the datasets once per worker, with one thread: the runs side by side use the cores."""
+def set_threads(count: int) -> None:
+    """torch's and OpenCV's threads (1 where calibrations run side by side, one per core)."""
     import cv2
 
-    torch.set_num_threads(1)
-    cv2.setNumThreads(1)
+    torch.set_num_threads(count)
+    cv2.setNumThreads(count)
+
+
+def _worker_init(selection: Selection, variants: list[str]) -> None:
+    """Load the datasets once per worker, with one thread: the runs side by side use the cores."""
+    set_threads(1)
     work = tempfile.TemporaryDirectory()  # removed when the worker exits
     datasets = load_datasets(selection, Path(work.name), {})
     _WORKER.update(datasets={d.name: d for _, d in datasets}, configs=variant_configs(variants), work=work)

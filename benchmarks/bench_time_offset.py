@@ -37,7 +37,7 @@ import zlib
 
 import numpy as np
 import torch
-from bench_real import LEVELS, SYNTH_CAMERAS, draw_start
+from bench_real import LEVELS, SYNTH_CAMERAS, draw_start, set_threads
 from results_io import RESULTS, save_results
 from rich.console import Console
 
@@ -176,18 +176,15 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.join is not None:
-        parts = [json.loads((RESULTS / f"{n}.json").read_text()) for n in args.join.split(",")]
+        names = args.join.split(",")
+        parts = [json.loads((RESULTS / f"{n}.json").read_text()) for n in names]
         rows = joined([p["rows"] for p in parts])
         print_table(rows)
-        names = args.join.split(",")
         out = save_results(args.name, {**parts[0], "first_run": 0, "parts": names, "rows": rows})
         console.print(f"wrote {out}")
         return
     if args.threads is not None:
-        import cv2
-
-        torch.set_num_threads(args.threads)
-        cv2.setNumThreads(args.threads)
+        set_threads(args.threads)
     offsets = [None] if args.offsets_ms == "default" else [float(v) / 1e3 for v in args.offsets_ms.split(",")]
     variants = args.variants.split(",")
     rows = []

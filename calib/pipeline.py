@@ -147,12 +147,17 @@ class Calibrator:
                 return None, f"not modelled, points as measured: {why}"
         return scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
 
-    def _at_focal(self, focal: float, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:
-        """The edge matcher at working focal length ``focal`` (sharing this one's scan features)
-        and the config that names it; ``fine``: with ``config.fine_intensity_weight`` where set."""
-        update: dict = {"working_focal_px": focal}
+    def _level(self, focal: float | None = None, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:
+        """The matcher and config of one level: the edge matcher at working focal length ``focal``
+        (``None``: its own) and, ``fine``, with ``config.fine_intensity_weight`` where set (sharing
+        this one's scan features); this calibrator's own where that changes nothing."""
+        update: dict = {}
+        if focal is not None:
+            update["working_focal_px"] = focal
         if fine and self.config.fine_intensity_weight is not None:
             update["intensity_weight"] = self.config.fine_intensity_weight
+        if not update or not isinstance(self.matcher, EdgeMatcher):
+            return self.matcher, self.config
         edge = self.matcher.config.model_copy(update=update)
         return self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
 
@@ -227,21 +232,17 @@ class Calibrator:
             # the start is chosen by one pass at the finest level (or `probe_focal_px`), where a
             # wrong start ends its pass worse aligned than the right one; at 90 px it often ends
             # as well aligned
-            matcher, config = self.matcher, self.config
-            if self.config.probe_focal_px is not None:
-                matcher, config = self._at_focal(self.config.probe_focal_px)
+            matcher, config = self._level(self.config.probe_focal_px)
             one_pass = config.model_copy(update={"passes": 1})
             probed = refine_passes(frames, T_start, matcher, self.support, one_pass, rng, alternatives, held)
             T_start, alternatives = probed.T_cam_lidar, []
         for focal in pyramid:  # the edge matcher coarse to fine, δt held
             fine = self.config.fine_from_px is not None and focal >= self.config.fine_from_px
-            matcher, level_config = self._at_focal(focal, fine)
+            matcher, level_config = self._level(focal, fine)
             level = refine_passes(frames, T_start, matcher, self.support, level_config, rng, timing=held)
             T_start = level.T_cam_lidar
             coarse.append(_passes_entry("pyramid", level.passes, working_focal_px=focal))
-        finest, finest_config = self.matcher, self.config
-        if self.config.fine_intensity_weight is not None and isinstance(self.matcher, EdgeMatcher):
-            finest, finest_config = self._at_focal(self.matcher.config.working_focal_px, fine=True)
+        finest, finest_config = self._level(fine=True)
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
             frames,
             T_start,
