@@ -82,7 +82,8 @@ PYRAMID_FOCALS_PX = (90.0, 180.0)
 """The ``pyramid`` variants' coarser working focal lengths (``pyramid_focals_px``)."""
 FULLRES_FOCAL_PX = 721.5
 """The ``fullres`` variants' finest working focal length (KITTI's native): the packaged finest
-level becomes one more pyramid level before it, and the probe of the starts runs there."""
+level becomes one more pyramid level before it (on one frame too), and the probe of the starts
+runs there."""
 LOW_INTENSITY_WEIGHT = 0.25
 """The ``iw25`` / ``iwfine`` variants' intensity edge weight (``edge.intensity_weight`` is 0.5):
 everywhere, at the finest level, or (``iwfine360``) from the packaged finest level, 360 px, on."""
@@ -118,9 +119,10 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
         stages = name.split("-")
         pyramid = PYRAMID_FOCALS_PX if "pyramid" in stages else ()
         edge = base.edge
-        probe = base.probe_focal_px
+        probe, few_from = base.probe_focal_px, base.few_frames_from_px
         if "fullres" in stages:
             pyramid, probe = (*pyramid, edge.working_focal_px), edge.working_focal_px
+            few_from = edge.working_focal_px  # one frame: the packaged finest level, then full resolution
             edge = edge.model_copy(update={"working_focal_px": FULLRES_FOCAL_PX})
         if "iw25" in stages:
             edge = edge.model_copy(update={"intensity_weight": LOW_INTENSITY_WEIGHT})
@@ -132,6 +134,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "contour": base.contour.model_copy(update={"enabled": "contour" in stages}),
                 "pyramid_focals_px": pyramid,
                 "probe_focal_px": probe,
+                "few_frames_from_px": few_from,
                 "fine_intensity_weight": fine_weight,
                 "fine_from_px": fine_from,
                 "edge": edge,

@@ -163,13 +163,18 @@ class Calibrator:
 
     def _pyramid_focals(self, frames: list[Frame]) -> list[float]:
         """The coarser working focal lengths the edge matcher's passes run at first on ``frames``
-        (none for another matcher, or on fewer than ``config.pyramid_min_frames``): those below
-        the finest level's, which is the matcher's working focal length or the camera's own where
-        that is shorter (images are never resampled up)."""
-        if not isinstance(self.matcher, EdgeMatcher) or len(frames) < self.config.pyramid_min_frames:
+        (none for another matcher): those below the finest level's, which is the matcher's working
+        focal length or the camera's own where that is shorter (images are never resampled up);
+        on fewer than ``config.pyramid_min_frames`` frames only those from
+        ``config.few_frames_from_px`` on (none where unset)."""
+        if not isinstance(self.matcher, EdgeMatcher):
             return []
         finest = min(self.matcher.config.working_focal_px, float(frames[0].K[0, 0]))
-        return [f for f in self.config.pyramid_focals_px if f < finest]
+        focals = [f for f in self.config.pyramid_focals_px if f < finest]
+        if len(frames) >= self.config.pyramid_min_frames:
+            return focals
+        floor = self.config.few_frames_from_px
+        return [] if floor is None else [f for f in focals if f >= floor]
 
     def calibrate(
         self,

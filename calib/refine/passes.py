@@ -227,6 +227,13 @@ class CalibrateConfig(BaseModel):
         "real frames from 2° / 10 cm, 4 draws each, KITTI object 000114 4 of 4 within 5 cm / 0.5° "
         "without it, 1 of 4 with it)",
     )
+    few_frames_from_px: PositiveFloat | None = Field(
+        None,
+        description="on fewer than `pyramid_min_frames` frames, the pyramid levels at or above this "
+        "working focal length (px) still run (null: none). Where the finest level is full "
+        "resolution, one frame's passes then start at the half-resolution level, whose reach in "
+        "angle is twice the finest's",
+    )
     check_below_px: float = Field(
         3.0,
         gt=0,

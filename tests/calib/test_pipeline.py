@@ -116,22 +116,24 @@ def test_pyramid_levels_at_or_above_the_cameras_focal_length_are_skipped(frames)
 
 
 def test_one_frame_skips_the_pyramid_unless_allowed(frames):
-    """The pyramid needs ``pyramid_min_frames`` frames: on one frame its coarse levels wander."""
+    """The pyramid needs ``pyramid_min_frames`` frames: on one frame its coarse levels wander; only
+    those from ``few_frames_from_px`` on still run there."""
     T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(1))
     stages = {}
-    for least in (2, 1):
+    for least, few_from in ((2, None), (1, None), (2, 180.0)):
         config = FAST.model_copy(
             update={
                 "frames": 1,
                 "pyramid_focals_px": (90.0, 180.0),
                 "pyramid_min_frames": least,
+                "few_frames_from_px": few_from,
                 "coarse": FAST.coarse.model_copy(update={"enabled": False}),
                 "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
             }
         )
         result = Calibrator(config=config).calibrate(frames[:1], T_init)
-        stages[least] = [c["working_focal_px"] for c in result.coarse if c["stage"] == "pyramid"]
-    assert stages == {2: [], 1: [90.0, 180.0]}
+        stages[least, few_from] = [c["working_focal_px"] for c in result.coarse if c["stage"] == "pyramid"]
+    assert stages == {(2, None): [], (1, None): [90.0, 180.0], (2, 180.0): [180.0]}
 
 
 def test_the_probe_of_the_starts_runs_at_probe_focal_px(frames, monkeypatch):
