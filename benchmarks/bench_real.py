@@ -84,8 +84,10 @@ FULLRES_FOCAL_PX = 721.5
 """The ``fullres`` variants' finest working focal length (KITTI's native): the packaged finest
 level becomes one more pyramid level before it (on one frame too), and the probe of the starts
 runs there."""
+INTENSITY_WEIGHT = 0.5
+"""``edge.intensity_weight`` of every variant but the ``iw25`` ones."""
 LOW_INTENSITY_WEIGHT = 0.25
-"""The ``iw25`` / ``iwfine`` variants' intensity edge weight (``edge.intensity_weight`` is 0.5):
+"""The ``iw25`` / ``iwfine`` variants' intensity edge weight:
 everywhere, at the finest level, or (``iwfine360``) from the packaged finest level, 360 px, on."""
 ALL6 = "kitti-raw-0928-all6"
 KITTI_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
@@ -118,20 +120,20 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
     def switched(name: str) -> CalibrateConfig:
         stages = name.split("-")
         pyramid = PYRAMID_FOCALS_PX if "pyramid" in stages else ()
-        edge = base.edge
-        probe, few_from = base.probe_focal_px, base.few_frames_from_px
+        finest = probe = few_from = None  # the finest passes at edge.working_focal_px, 360 px
+        edge = base.edge.model_copy(update={"intensity_weight": INTENSITY_WEIGHT})
         if "fullres" in stages:
-            pyramid, probe = (*pyramid, edge.working_focal_px), edge.working_focal_px
-            few_from = edge.working_focal_px  # one frame: the packaged finest level, then full resolution
-            edge = edge.model_copy(update={"working_focal_px": FULLRES_FOCAL_PX})
+            pyramid, finest = (*pyramid, edge.working_focal_px), FULLRES_FOCAL_PX
+            probe = few_from = edge.working_focal_px  # one frame too: 360 px, then full resolution
         if "iw25" in stages:
             edge = edge.model_copy(update={"intensity_weight": LOW_INTENSITY_WEIGHT})
         fine_weight = LOW_INTENSITY_WEIGHT if "iwfine" in stages or "iwfine360" in stages else None
-        fine_from = base.edge.working_focal_px if "iwfine360" in stages else None
+        fine_from = edge.working_focal_px if "iwfine360" in stages else None
         return base.model_copy(
             update={
                 "coarse": base.coarse.model_copy(update={"enabled": "global" in stages}),
                 "contour": base.contour.model_copy(update={"enabled": "contour" in stages}),
+                "finest_focal_px": finest,
                 "pyramid_focals_px": pyramid,
                 "probe_focal_px": probe,
                 "few_frames_from_px": few_from,

@@ -14,7 +14,7 @@ window on a stream and fuses the windows into a running estimate with a drift al
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from collections.abc import Sequence as FrameList
 from dataclasses import replace
 
@@ -38,6 +38,10 @@ from calib.results import CalibrationResult, OnlineEstimate
 from calib.support.source import SupportSource, UniformSupport
 
 __all__ = ["Calibrator", "OnlineCalibrator", "default_matcher", "select_frames"]
+
+NEAR_FINEST = 0.9
+"""A pyramid level (or the probe) at or above this share of the finest working focal length would
+repeat the finest level (a 624x188 camera's 360.8 px against a 360 px level): it runs there instead."""
 
 
 def select_frames(n: int, count: int) -> np.ndarray:
@@ -149,28 +153,37 @@ class Calibrator:
 
     def _level(self, focal: float | None = None, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:
         """The matcher and config of one level: the edge matcher at working focal length ``focal``
-        (``None``: its own) and, ``fine``, with ``config.fine_intensity_weight`` where set (sharing
-        this one's scan features); this calibrator's own where that changes nothing."""
+        (``None``: the finest level's, ``config.finest_focal_px`` or its own) and, ``fine``, with
+        ``config.fine_intensity_weight`` where set (sharing this one's scan features); this
+        calibrator's own where that changes nothing."""
+        if not isinstance(self.matcher, EdgeMatcher):
+            return self.matcher, self.config
         update: dict = {}
-        if focal is not None:
+        focal = focal if focal is not None else self.config.finest_focal_px
+        if focal is not None and focal != self.matcher.config.working_focal_px:
             update["working_focal_px"] = focal
         if fine and self.config.fine_intensity_weight is not None:
             update["intensity_weight"] = self.config.fine_intensity_weight
-        if not update or not isinstance(self.matcher, EdgeMatcher):
+        if not update:
             return self.matcher, self.config
         edge = self.matcher.config.model_copy(update=update)
         return self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
 
+    def _coarser(self, frames: list[Frame]) -> Callable[[float], bool]:
+        """Whether a working focal length is a level of its own below the finest on ``frames``:
+        under :data:`NEAR_FINEST` of the finest's (``config.finest_focal_px`` or the matcher's),
+        or of the camera's own where that is shorter (images are never resampled up)."""
+        finest = self.config.finest_focal_px or self.matcher.config.working_focal_px
+        return lambda focal: focal < NEAR_FINEST * min(finest, float(frames[0].K[0, 0]))
+
     def _pyramid_focals(self, frames: list[Frame]) -> list[float]:
         """The coarser working focal lengths the edge matcher's passes run at first on ``frames``
-        (none for another matcher): those below the finest level's, which is the matcher's working
-        focal length or the camera's own where that is shorter (images are never resampled up);
-        on fewer than ``config.pyramid_min_frames`` frames only those from
+        (none for another matcher): those of ``config.pyramid_focals_px`` below the finest level
+        (:meth:`_coarser`); on fewer than ``config.pyramid_min_frames`` frames only those from
         ``config.few_frames_from_px`` on (none where unset)."""
         if not isinstance(self.matcher, EdgeMatcher):
             return []
-        finest = min(self.matcher.config.working_focal_px, float(frames[0].K[0, 0]))
-        focals = [f for f in self.config.pyramid_focals_px if f < finest]
+        focals = [f for f in self.config.pyramid_focals_px if self._coarser(frames)(f)]
         if len(frames) >= self.config.pyramid_min_frames:
             return focals
         floor = self.config.few_frames_from_px
@@ -237,7 +250,8 @@ class Calibrator:
             # the start is chosen by one pass at the finest level (or `probe_focal_px`), where a
             # wrong start ends its pass worse aligned than the right one; at 90 px it often ends
             # as well aligned
-            matcher, config = self._level(self.config.probe_focal_px)
+            probe = self.config.probe_focal_px
+            matcher, config = self._level(probe if probe and self._coarser(frames)(probe) else None)
             one_pass = config.model_copy(update={"passes": 1})
             probed = refine_passes(frames, T_start, matcher, self.support, one_pass, rng, alternatives, held)
             T_start, alternatives = probed.T_cam_lidar, []

@@ -188,11 +188,17 @@ class CalibrateConfig(BaseModel):
         "beat 211 at 42 px; six KITTI frames from 10°: the initial, 47 cm off, matched by 1818 at "
         "2.6 px beat a coarse answer 15 cm off matched by 8829 at 3.2 px)",
     )
+    finest_focal_px: PositiveFloat | None = Field(
+        None,
+        description="working focal length (px) of the edge matcher's finest passes (null: "
+        "`edge.working_focal_px`); `edge` itself stays the matcher of the other commands (maps, "
+        "analyze, online). Above the camera's own focal length the image is used as it is",
+    )
     pyramid_focals_px: tuple[PositiveFloat, ...] = Field(
         (90.0, 180.0),
         description="run the edge matcher's passes first at these coarser working focal lengths (px, "
-        "coarse to fine; those at or above `edge.working_focal_px` or the camera's own focal length "
-        "are skipped; empty: none), each going on from the last, after the start (initial or "
+        "coarse to fine; those from 90 % of the finest level's (`finest_focal_px`, or the camera's "
+        "own where that is shorter) up are skipped; empty: none), each going on from the last, after the start (initial or "
         "coarse) is chosen by one pass at the finest level (or `probe_focal_px`): its windows and "
         "search range, in working pixels, span 4x the angles at 90 px. "
         "Six real KITTI frames, 20 draws each (README): from 2° / 10 cm 19 of 20 within 5 cm / 0.5° "
@@ -202,7 +208,7 @@ class CalibrateConfig(BaseModel):
     probe_focal_px: PositiveFloat | None = Field(
         None,
         description="working focal length (px) of the one pass that chooses the start (initial or "
-        "coarse) before the pyramid; null: the finest, `edge.working_focal_px`. Where the finest "
+        "coarse) before the pyramid; null: the finest level's. Where the finest "
         "level is full resolution (721.5 px on KITTI) a probe at 360 px costs a quarter as much and "
         "still tells a wrong start from the right one",
     )
@@ -211,8 +217,8 @@ class CalibrateConfig(BaseModel):
         description="`edge.intensity_weight` of the finest level's passes (null: the same), and of "
         "the pyramid levels from `fine_from_px` on; the probe and the coarser levels keep "
         "`edge.intensity_weight`. The intensity edges hold the basin at the coarse levels, and at "
-        "the fine ones the stripes of the scan lines in them lean (README: six KITTI frames at "
-        "full resolution; experimental)",
+        "the fine ones the stripes of the scan lines in them lean the roll (README: six KITTI frames "
+        "at full resolution, +0.20° with 0.5 everywhere)",
     )
     fine_from_px: PositiveFloat | None = Field(
         None,

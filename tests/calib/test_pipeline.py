@@ -98,6 +98,35 @@ def test_fine_intensity_weight_holds_from_fine_from_px_and_at_the_finest_level(f
     assert weights == {90.0: {0.5}, 180.0: {0.5, 0.25}, 360.0: {0.25}}  # 180: the probe, then the level
 
 
+def test_the_finest_passes_run_at_finest_focal_px_and_levels_near_it_are_skipped(frames, monkeypatch):
+    """``finest_focal_px`` moves the finest passes (not ``edge``, the other commands' matcher); a
+    pyramid level or probe within 10 % of the finest level (here the camera's 360.8 px) runs at
+    the finest level instead of repeating it."""
+    focals = []
+    match = EdgeMatcher.match
+
+    def recording(self, frame, T_cam_lidar):
+        focals.append(self.config.working_focal_px)
+        return match(self, frame, T_cam_lidar)
+
+    monkeypatch.setattr(EdgeMatcher, "match", recording)
+    T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(6))
+    config = FAST.model_copy(
+        update={
+            "passes": 1,
+            "finest_focal_px": 1000.0,
+            "pyramid_focals_px": (90.0, 180.0, 340.0),
+            "probe_focal_px": 340.0,
+            "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
+        }
+    )
+    calibrator = Calibrator(config=config)
+    result = calibrator.calibrate(frames, T_init)
+    assert [c["working_focal_px"] for c in result.coarse if c["stage"] == "pyramid"] == [90.0, 180.0]
+    assert focals[0] == 1000.0 and focals[-1] == 1000.0 and 340.0 not in focals  # probe, finest
+    assert calibrator.matcher.config.working_focal_px == 360.0
+
+
 def test_pyramid_levels_at_or_above_the_cameras_focal_length_are_skipped(frames):
     """A working focal length above the camera's (360.8 px) leaves the image as it is, so a
     pyramid level between the two would be the finest level again."""
