@@ -28,6 +28,7 @@ and its message is kept. Prints a table, one progress line per run to stderr, an
     .venv/bin/python benchmarks/bench_real.py [--runs 20] [--levels 2,5,10] [--only real|synthetic]
         [--fixtures NAME,...] [--variants global,global-pyramid] [--shell]
         [--jobs N: runs side by side on a machine of many cores] [--first-run K] [--name NAME]
+    .venv/bin/python benchmarks/bench_real.py --join PART,PART,... --name NAME [--merge]
 """
 
 from __future__ import annotations
@@ -457,6 +458,33 @@ def merged(earlier: dict, new: dict) -> dict:
     return new
 
 
+def joined(parts: list[dict]) -> dict:
+    """Several parts of one benchmark (``--first-run``, ``--name`` each) as one: each dataset,
+    level and variant's runs in run order (a run in two parts: the later part's), summarised
+    again, measured on the days and where its parts were; the parts' other keys as
+    :func:`merged` keeps them."""
+    whole = copy.deepcopy(parts[0])
+    for part in parts[1:]:
+        whole = merged(whole, copy.deepcopy(part))
+    for kind in ("real", "synthetic"):
+        for name, row in whole.get(kind, {}).items():
+            for level, variants in row["levels"].items():
+                for variant in variants:
+                    entries = [
+                        e
+                        for p in parts
+                        if (e := p.get(kind, {}).get(name, {}).get("levels", {}).get(level, {}).get(variant))
+                    ]
+                    runs = {r["run"]: r for e in entries for r in e["runs"]}
+                    variants[variant] = {
+                        "summary": summarise([runs[i] for i in sorted(runs)], row["frames"]),
+                        "runs": [runs[i] for i in sorted(runs)],
+                        "measured": ", ".join(dict.fromkeys(e["measured"] for e in entries)),
+                        "where": "; ".join(dict.fromkeys(e["where"] for e in entries)),
+                    }
+    return whole
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=20, help="runs per dataset, level and variant")
@@ -504,7 +532,20 @@ def main() -> None:
         help="runs side by side, one process each (one thread each): for a machine of many cores; "
         "their seconds are not this machine's one-at-a-time seconds (the rows say where they ran)",
     )
+    parser.add_argument(
+        "--join",
+        default=None,
+        help="comma-separated results/NAME.json of parts (--first-run) to join into --name (with "
+        "--merge: over its other rows); runs nothing",
+    )
     args = parser.parse_args()
+    if args.join:
+        parts = [json.loads((RESULTS / f"{n}.json").read_text()) for n in args.join.split(",")]
+        whole, target = joined(parts), RESULTS / f"{args.name}.json"
+        if args.merge and target.is_file():
+            whole = merged(json.loads(target.read_text()), whole)
+        print(f"wrote {save_results(args.name, whole)}")
+        return
     if args.jobs < 1:
         parser.error("--jobs must be at least 1")
     synth_seeds = tuple(int(s) for s in args.synth_seeds.split(","))

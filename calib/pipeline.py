@@ -105,6 +105,7 @@ class Calibrator:
                 "needs the learned flow matcher: use supportnet.Calibrator, or pass coarse_matcher=",
             )
         self.coarse_matcher = coarse_matcher
+        self._levels: dict[tuple, tuple[Matcher, CalibrateConfig]] = {}  # by what _level changed
 
     def initial_extrinsic(self, seq: Sequence) -> np.ndarray:
         """Stage 1: ``T⁰ (4, 4)`` from the sequence's motion (raises when motion cannot tell)."""
@@ -166,8 +167,11 @@ class Calibrator:
             update["intensity_weight"] = self.config.fine_intensity_weight
         if not update:
             return self.matcher, self.config
-        edge = self.matcher.config.model_copy(update=update)
-        return self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
+        key = tuple(sorted(update.items()))
+        if key not in self._levels:  # kept: its image views serve the next calibration too
+            edge = self.matcher.config.model_copy(update=update)
+            self._levels[key] = self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
+        return self._levels[key]
 
     def _coarser(self, frames: list[Frame]) -> Callable[[float], bool]:
         """Whether a working focal length is a level of its own below the finest on ``frames``:

@@ -143,3 +143,22 @@ def test_a_benchmark_in_parts_draws_the_runs_of_one_whole_run():
     whole = bench_real.level_runs(["0", "2"], 6)
     parts = bench_real.level_runs(["2"], 3) + bench_real.level_runs(["2"], 3, first=3)
     assert whole == [("0", 0)] + parts
+
+
+def test_parts_join_run_by_run_and_are_summarised_again():
+    """``--join``: the runs of parts drawn with ``--first-run`` make one row per dataset, level and
+    variant, in run order, with the success and medians of all of them."""
+
+    def part(first: int, cms: list[float], day: str, where: str) -> dict:
+        result = _result("a", len(cms))
+        runs = [{**_run(cm, 0.1), "run": first + k} for k, cm in enumerate(cms)]
+        entry = {"summary": bench_real.summarise(runs, 6), "runs": runs, "measured": day, "where": where}
+        result["real"]["a"]["levels"]["2"]["dense"] = entry
+        return result
+
+    whole = bench_real.joined([part(2, [3.0, 4.0], "d2", "here"), part(0, [1.0, 1.5], "d1", "there")])
+    entry = whole["real"]["a"]["levels"]["2"]["dense"]
+    assert [r["run"] for r in entry["runs"]] == [0, 1, 2, 3]
+    assert entry["summary"]["runs"] == 4 and entry["summary"]["success_rate"] == 0.5
+    assert entry["summary"]["cm_median"] == pytest.approx(2.25)
+    assert entry["measured"] == "d2, d1" and entry["where"] == "here; there"

@@ -125,6 +125,8 @@ def test_the_finest_passes_run_at_finest_focal_px_and_levels_near_it_are_skipped
     assert [c["working_focal_px"] for c in result.coarse if c["stage"] == "pyramid"] == [90.0, 180.0]
     assert focals[0] == 1000.0 and focals[-1] == 1000.0 and 340.0 not in focals  # probe, finest
     assert calibrator.matcher.config.working_focal_px == 360.0
+    # each level's matcher is made once, so its image views serve the next calibration too
+    assert calibrator._level(fine=True)[0] is calibrator._level(fine=True)[0]
 
 
 def test_pyramid_levels_at_or_above_the_cameras_focal_length_are_skipped(frames):
