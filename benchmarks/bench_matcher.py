@@ -1,7 +1,7 @@
 """Stage 2 and 3 speed: EdgeMatcher ms per 624x188 frame (``small=True``), map accumulation
 frames/s (matcher excluded); and the EdgeMatcher on the real full-resolution KITTI raw frames
-(1224x370, f = 707) at each working focal length the refinement uses (360 px, and the pyramid's
-180 and 90), the first match of a frame (its scan's features and its image's edges computed) and
+(1224x370, f = 707) at each working focal length the refinement uses (its own, 707 px: the finest
+level at full resolution; the pyramid's 360, 180 and 90), the first match of a frame (its scan's features and its image's edges computed) and
 the matches after it (as a refinement matches the same frames again). Prints a table and writes
 benchmarks/results/matcher.json."""
 
@@ -20,6 +20,8 @@ from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
 
 FRAMES = 10
+FULL_RESOLUTION = 721.5
+"""The finest level's working focal length (``finest_focal_px``): KITTI's 707 px frames as they are."""
 
 
 def real_frames_ms() -> dict | None:
@@ -36,7 +38,7 @@ def real_frames_ms() -> dict | None:
         "size": f"{frames[0].image_size[1]}x{frames[0].image_size[0]}",
         "focal_px": float(frames[0].K[0, 0]),
     }
-    for focal in (360.0, 180.0, 90.0):
+    for focal in (FULL_RESOLUTION, 360.0, 180.0, 90.0):
         matcher = EdgeMatcher(EdgeMatcherConfig(working_focal_px=focal))
         first, again = [], []
         for f in frames:
@@ -84,7 +86,7 @@ def main() -> None:
     real = real_frames_ms()
     if real is not None:
         print(f"real KITTI raw, {real['size']}: working focal px, ms first match / again")
-        for focal in ("360", "180", "90"):
+        for focal in (f"{FULL_RESOLUTION:g}", "360", "180", "90"):
             print(f"{focal:>6} {real[focal]['first_ms']:>8.0f} / {real[focal]['again_ms']:.0f}")
         rows["kitti-raw-full-resolution"] = real
     save_results("matcher", rows)

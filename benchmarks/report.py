@@ -383,14 +383,14 @@ def main() -> None:
     parser.add_argument(
         "--only",
         default=None,
-        help="comma-separated sections (real, check, realism) to replace in the README, keeping the others "
+        help="comma-separated sections (real, check, realism, speed) to replace in the README, keeping the others "
         "as they are (for a benchmark run on its own)",
     )
     args = parser.parse_args()
     if args.only is not None:
         if args.readme is None:
             raise SystemExit("report.py: --only needs --readme")
-        pick = {"real": real_data, "check": check, "realism": realism}
+        pick = {"real": real_data, "check": check, "realism": realism, "speed": speed}
         if bad := [name for name in args.only.split(",") if name not in pick]:
             raise SystemExit(f"report.py: unknown section(s) {', '.join(bad)}; choose from {', '.join(pick)}")
         readme = args.readme.read_text()
