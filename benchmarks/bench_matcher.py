@@ -1,9 +1,9 @@
 """Stage 2 and 3 speed: EdgeMatcher ms per 624x188 frame (``small=True``), map accumulation
 frames/s (matcher excluded); and the EdgeMatcher on the real full-resolution KITTI raw frames
-(1224x370, f = 707) at each working focal length the refinement uses (its own, 707 px: the finest
-level at full resolution; the pyramid's 360, 180 and 90), the first match of a frame (its scan's features and its image's edges computed) and
-the matches after it (as a refinement matches the same frames again). Prints a table and writes
-benchmarks/results/matcher.json."""
+(1224x370, f = 707) at each working focal length the refinement uses (its own, 707 px: the
+finest level at full resolution; the pyramid's 360, 180 and 90), the first match of a frame
+(its scan's features and its image's edges computed) and the matches after it (as a refinement
+matches the same frames again). Prints a table and writes benchmarks/results/matcher.json."""
 
 from __future__ import annotations
 

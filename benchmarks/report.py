@@ -383,8 +383,8 @@ def main() -> None:
     parser.add_argument(
         "--only",
         default=None,
-        help="comma-separated sections (real, check, realism, speed) to replace in the README, keeping the others "
-        "as they are (for a benchmark run on its own)",
+        help="comma-separated sections (real, check, realism, speed) to replace in the README, keeping "
+        "the others as they are (for a benchmark run on its own)",
     )
     args = parser.parse_args()
     if args.only is not None:

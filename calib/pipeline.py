@@ -259,11 +259,19 @@ class Calibrator:
             one_pass = config.model_copy(update={"passes": 1})
             probed = refine_passes(frames, T_start, matcher, self.support, one_pass, rng, alternatives, held)
             T_start, alternatives = probed.T_cam_lidar, []
-        for focal in pyramid:  # the edge matcher coarse to fine, δt held
+        restarted = None  # the passes that ran the δt restarts, where a pyramid level did
+        timed_from = self.config.time_offset.from_px
+        for focal in pyramid:  # the edge matcher coarse to fine, δt held until `time_offset.from_px`
             fine = self.config.fine_from_px is not None and focal >= self.config.fine_from_px
             matcher, level_config = self._level(focal, fine)
-            level = refine_passes(frames, T_start, matcher, self.support, level_config, rng, timing=held)
+            timed = timing is not None and timed_from is not None and focal >= timed_from
+            level = refine_passes(
+                frames, T_start, matcher, self.support, level_config, rng, timing=timing if timed else held
+            )
             T_start = level.T_cam_lidar
+            if timed:  # the finer levels go on from its δt, without restarts
+                restarted = restarted or level
+                timing = replace(timing, offset_s=level.time_offset_s, restarts_s=())
             coarse.append(_passes_entry("pyramid", level.passes, working_focal_px=focal))
         finest, finest_config = self._level(fine=True)
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
@@ -289,7 +297,7 @@ class Calibrator:
             timing_note += "".join(
                 f"; restarted at δt {1e3 * r['time_offset_from_s']:.1f} ms (median residual "
                 f"{r['alignment_px']:.2f} px against the settled {r['alignment_before_px']:.2f} px)"
-                for r in passes.time_offset_restarts
+                for r in (restarted or passes).time_offset_restarts
                 if r["taken"]
             )
         if coarse_starts:  # the passes went on from the start whose first pass ended best aligned

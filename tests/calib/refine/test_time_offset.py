@@ -145,3 +145,37 @@ def test_known_motions_must_cover_every_used_frame():
     frames = [_frame(k) for k in range(3)]
     with pytest.raises(DataError, match=r"no motion for the frames at positions \[1, 2\]"):
         Calibrator(config=config).calibrate(frames, T_TRUE, motions={0: ScanMotion.still()})
+
+
+def test_the_pyramid_level_at_time_offset_from_px_runs_the_restarts(monkeypatch):
+    """δt is held on the pyramid's coarser levels, estimated from ``time_offset.from_px`` on with
+    the restarts at the first such level (within its reach), and the finest passes go on from its
+    δt without them."""
+    import calib.pipeline as pipeline
+    from calib.refine.passes import PassesResult
+
+    calls = []
+
+    def recording(frames, T_init, matcher, support, config, rng, alternatives=(), timing=None):
+        calls.append((config.edge.working_focal_px, timing.estimate, timing.restarts_s, timing.offset_s))
+        return PassesResult(T_init, np.eye(6) * 1e-6, [], 100, time_offset_s=0.004 * len(calls))
+
+    monkeypatch.setattr(pipeline, "refine_passes", recording)
+    base = CalibrateConfig(frames=5)
+    config = base.model_copy(
+        update={
+            "finest_focal_px": 1000.0,
+            "pyramid_focals_px": (90.0, 180.0),
+            "coarse": base.coarse.model_copy(update={"enabled": False}),
+            "time_offset": base.time_offset.model_copy(update={"from_px": 180.0}),
+        }
+    )
+    frames, motions = _timed_frames()
+    frames = [replace(f, timestamp=0.1 * k, lidar_timestamp=0.1 * k) for k, f in enumerate(frames)]
+    pipeline.Calibrator(config=config).calibrate(frames, T_TRUE, motions=dict(enumerate(motions)))
+    restarts = tuple(ms / 1e3 for ms in base.time_offset.restarts_ms)
+    assert calls == [
+        (90.0, False, (), 0.0),  # held
+        (180.0, True, restarts, 0.0),  # estimated, with the restarts
+        (1000.0, True, (), 0.008),  # from the 180 px level's δt, without them
+    ]
