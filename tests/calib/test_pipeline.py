@@ -27,6 +27,20 @@ def frames():
     return [synth.render(i).frame for i in range(7)]
 
 
+@pytest.fixture
+def matched_configs(monkeypatch) -> list:
+    """The EdgeMatcher configs of every match, in order (``EdgeMatcher.match`` recorded)."""
+    configs = []
+    match = EdgeMatcher.match
+
+    def recording(self, frame, T_cam_lidar):
+        configs.append(self.config)
+        return match(self, frame, T_cam_lidar)
+
+    monkeypatch.setattr(EdgeMatcher, "match", recording)
+    return configs
+
+
 def test_select_frames_spreads_evenly():
     assert select_frames(10, 3).tolist() == [0, 4, 9] or select_frames(10, 3).tolist() == [0, 5, 9]
     assert select_frames(2, 10).tolist() == [0, 1]
@@ -72,17 +86,9 @@ def test_matcher_pyramid_reaches_where_the_finest_level_cannot(frames):
     assert all(c["passes"] >= 1 for c in levels[(90.0, 180.0, 1000.0)]) and levels[()] == []
 
 
-def test_fine_intensity_weight_holds_from_fine_from_px_and_at_the_finest_level(frames, monkeypatch):
+def test_fine_intensity_weight_holds_from_fine_from_px_and_at_the_finest_level(frames, matched_configs):
     """``fine_intensity_weight`` replaces ``edge.intensity_weight`` at the finest level and at the
     pyramid levels from ``fine_from_px`` on; the probe and the coarser levels keep the edge's."""
-    weights = {}
-    match = EdgeMatcher.match
-
-    def recording(self, frame, T_cam_lidar):
-        weights.setdefault(self.config.working_focal_px, set()).add(self.config.intensity_weight)
-        return match(self, frame, T_cam_lidar)
-
-    monkeypatch.setattr(EdgeMatcher, "match", recording)
     T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(5))
     config = FAST.model_copy(
         update={
@@ -95,21 +101,16 @@ def test_fine_intensity_weight_holds_from_fine_from_px_and_at_the_finest_level(f
         }
     )
     Calibrator(config=config).calibrate(frames, T_init)
+    weights = {}
+    for c in matched_configs:
+        weights.setdefault(c.working_focal_px, set()).add(c.intensity_weight)
     assert weights == {90.0: {0.5}, 180.0: {0.5, 0.25}, 360.0: {0.25}}  # 180: the probe, then the level
 
 
-def test_the_finest_passes_run_at_finest_focal_px_and_levels_near_it_are_skipped(frames, monkeypatch):
+def test_the_finest_passes_run_at_finest_focal_px_and_levels_near_it_are_skipped(frames, matched_configs):
     """``finest_focal_px`` moves the finest passes (not ``edge``, the other commands' matcher); a
     pyramid level or probe within 10 % of the finest level (here the camera's 360.8 px) runs at
     the finest level instead of repeating it."""
-    focals = []
-    match = EdgeMatcher.match
-
-    def recording(self, frame, T_cam_lidar):
-        focals.append(self.config.working_focal_px)
-        return match(self, frame, T_cam_lidar)
-
-    monkeypatch.setattr(EdgeMatcher, "match", recording)
     T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(6))
     config = FAST.model_copy(
         update={
@@ -123,6 +124,7 @@ def test_the_finest_passes_run_at_finest_focal_px_and_levels_near_it_are_skipped
     calibrator = Calibrator(config=config)
     result = calibrator.calibrate(frames, T_init)
     assert [c["working_focal_px"] for c in result.coarse if c["stage"] == "pyramid"] == [90.0, 180.0]
+    focals = [c.working_focal_px for c in matched_configs]
     assert focals[0] == 1000.0 and focals[-1] == 1000.0 and 340.0 not in focals  # probe, finest
     assert calibrator.matcher.config.working_focal_px == 360.0
     # each level's matcher is made once, so its image views serve the next calibration too
@@ -167,21 +169,13 @@ def test_one_frame_skips_the_pyramid_unless_allowed(frames):
     assert stages == {(2, None): [], (1, None): [90.0, 180.0], (2, 180.0): [180.0]}
 
 
-def test_the_probe_of_the_starts_runs_at_probe_focal_px(frames, monkeypatch):
+def test_the_probe_of_the_starts_runs_at_probe_focal_px(frames, matched_configs):
     """The one pass that chooses among the starts matches at ``probe_focal_px`` (default: the
     finest working focal length), then the pyramid and the finest passes follow."""
-    focals = []
-    match = EdgeMatcher.match
-
-    def recording(self, frame, T_cam_lidar):
-        focals.append(self.config.working_focal_px)
-        return match(self, frame, T_cam_lidar)
-
-    monkeypatch.setattr(EdgeMatcher, "match", recording)
     T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(3))
     first = {}
     for probe in (None, 180.0):
-        focals.clear()
+        matched_configs.clear()
         config = FAST.model_copy(
             update={
                 "passes": 1,
@@ -191,6 +185,7 @@ def test_the_probe_of_the_starts_runs_at_probe_focal_px(frames, monkeypatch):
             }
         )
         result = Calibrator(config=config).calibrate(frames, T_init)
+        focals = [c.working_focal_px for c in matched_configs]
         first[probe] = focals[0]
         assert focals[-1] == 360.0 and 90.0 in focals  # the pyramid, then the finest passes
         assert next(c for c in result.coarse if c["stage"] == "choice")
