@@ -85,11 +85,14 @@ FULLRES_FOCAL_PX = 721.5
 """The ``fullres`` variants' finest working focal length (KITTI's native): the packaged finest
 level becomes one more pyramid level before it (on one frame too), and the probe of the starts
 runs there."""
+TIMED_FROM_PX = 180.0
+"""The ``fullres`` variants' ``time_offset.from_px`` (the others estimate δt, and restart it, at
+the finest level alone)."""
 INTENSITY_WEIGHT = 0.5
 """``edge.intensity_weight`` of every variant but the ``iw25`` ones."""
 LOW_INTENSITY_WEIGHT = 0.25
 """The ``iw25`` / ``iwfine`` variants' intensity edge weight:
-everywhere, at the finest level, or (``iwfine360``) from the packaged finest level, 360 px, on."""
+everywhere, at the finest level, or (``iwfine360``) from 360 px on."""
 ALL6 = "kitti-raw-0928-all6"
 KITTI_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
 ZED_HALF = {"width": 960, "height": 540, "fx": 527.0, "fy": 527.0, "cx": 479.5, "cy": 269.5}
@@ -121,11 +124,12 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
     def switched(name: str) -> CalibrateConfig:
         stages = name.split("-")
         pyramid = PYRAMID_FOCALS_PX if "pyramid" in stages else ()
-        finest = probe = few_from = None  # the finest passes at edge.working_focal_px, 360 px
+        finest = probe = few_from = timed_from = None  # the finest passes at edge's 360 px
         edge = base.edge.model_copy(update={"intensity_weight": INTENSITY_WEIGHT})
         if "fullres" in stages:
             pyramid, finest = (*pyramid, edge.working_focal_px), FULLRES_FOCAL_PX
             probe = few_from = edge.working_focal_px  # one frame too: 360 px, then full resolution
+            timed_from = TIMED_FROM_PX
         if "iw25" in stages:
             edge = edge.model_copy(update={"intensity_weight": LOW_INTENSITY_WEIGHT})
         fine_weight = LOW_INTENSITY_WEIGHT if "iwfine" in stages or "iwfine360" in stages else None
@@ -140,6 +144,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "few_frames_from_px": few_from,
                 "fine_intensity_weight": fine_weight,
                 "fine_from_px": fine_from,
+                "time_offset": base.time_offset.model_copy(update={"from_px": timed_from}),
                 "edge": edge,
                 "matcher": "flow" if "flow" in stages else "edge",
                 "flow_coarse_passes": FLOW_COARSE_PASSES if "flowcoarse" in stages else 0,

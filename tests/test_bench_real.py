@@ -162,3 +162,15 @@ def test_parts_join_run_by_run_and_are_summarised_again():
     assert entry["summary"]["runs"] == 4 and entry["summary"]["success_rate"] == 0.5
     assert entry["summary"]["cm_median"] == pytest.approx(2.25)
     assert entry["measured"] == "d2, d1" and entry["where"] == "here; there"
+
+
+def test_the_packaged_variant_is_the_packaged_config():
+    """The README's rows of ``global-pyramid-fullres-iwfine360`` measure what ``calibrate`` runs;
+    ``global-pyramid`` stays the default before it (finest passes at 360 px)."""
+    from calib.refine.passes import load_calibrate_config
+
+    configs = bench_real.variant_configs(["global-pyramid-fullres-iwfine360", "global-pyramid"])
+    assert configs["global-pyramid-fullres-iwfine360"] == load_calibrate_config()
+    old = configs["global-pyramid"]
+    assert old.finest_focal_px is None and old.pyramid_focals_px == (90.0, 180.0)
+    assert old.fine_intensity_weight is None and old.time_offset.from_px is None
