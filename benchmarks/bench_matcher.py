@@ -15,13 +15,14 @@ from results_io import save_results
 from calib.data import open_dataset
 from calib.data.real_fixtures import AMZ_DRIVE, AMZ_DRIVE_MORE, realdata_root
 from calib.match.edge_matcher import EdgeMatcher, EdgeMatcherConfig
+from calib.refine.passes import load_calibrate_config
 from calib.support.support_maps import support_maps
 from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
 
 FRAMES = 10
-FULL_RESOLUTION = 721.5
-"""The finest level's working focal length (``finest_focal_px``): KITTI's 707 px frames as they are."""
+FULL_RESOLUTION = load_calibrate_config().finest_focal_px
+"""The packaged finest level's working focal length: KITTI's 707 px frames as they are."""
 
 
 def real_frames_ms() -> dict | None:

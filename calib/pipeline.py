@@ -14,7 +14,7 @@ window on a stream and fuses the windows into a running estimate with a drift al
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from collections.abc import Sequence as FrameList
 from dataclasses import replace
 
@@ -173,25 +173,27 @@ class Calibrator:
             self._levels[key] = self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
         return self._levels[key]
 
-    def _coarser(self, frames: list[Frame]) -> Callable[[float], bool]:
-        """Whether a working focal length is a level of its own below the finest on ``frames``:
-        under :data:`NEAR_FINEST` of the finest's (``config.finest_focal_px`` or the matcher's),
-        or of the camera's own where that is shorter (images are never resampled up)."""
+    def _finest_focal(self, frames: list[Frame]) -> float:
+        """The finest level's working focal length on ``frames``: ``config.finest_focal_px`` (or
+        the matcher's), or the camera's own where that is shorter (images are never resampled up).
+        A level (or the probe) from :data:`NEAR_FINEST` of it up would repeat it."""
         finest = self.config.finest_focal_px or self.matcher.config.working_focal_px
-        return lambda focal: focal < NEAR_FINEST * min(finest, float(frames[0].K[0, 0]))
+        return min(finest, float(frames[0].K[0, 0]))
 
     def _pyramid_focals(self, frames: list[Frame]) -> list[float]:
         """The coarser working focal lengths the edge matcher's passes run at first on ``frames``
-        (none for another matcher): those of ``config.pyramid_focals_px`` below the finest level
-        (:meth:`_coarser`); on fewer than ``config.pyramid_min_frames`` frames only those from
-        ``config.few_frames_from_px`` on (none where unset)."""
+        (none for another matcher): those of ``config.pyramid_focals_px`` under
+        :data:`NEAR_FINEST` of the finest level's; on fewer than ``config.pyramid_min_frames``
+        frames only those from ``config.few_frames_from_px`` on (none where unset)."""
         if not isinstance(self.matcher, EdgeMatcher):
             return []
-        focals = [f for f in self.config.pyramid_focals_px if self._coarser(frames)(f)]
-        if len(frames) >= self.config.pyramid_min_frames:
-            return focals
-        floor = self.config.few_frames_from_px
-        return [] if floor is None else [f for f in focals if f >= floor]
+        below = NEAR_FINEST * self._finest_focal(frames)
+        few = len(frames) < self.config.pyramid_min_frames
+        return [
+            f
+            for f in self.config.pyramid_focals_px
+            if f < below and (not few or _from(f, self.config.few_frames_from_px))
+        ]
 
     def calibrate(
         self,
@@ -255,16 +257,16 @@ class Calibrator:
             # wrong start ends its pass worse aligned than the right one; at 90 px it often ends
             # as well aligned
             probe = self.config.probe_focal_px
-            matcher, config = self._level(probe if probe and self._coarser(frames)(probe) else None)
+            coarser = probe is not None and probe < NEAR_FINEST * self._finest_focal(frames)
+            matcher, config = self._level(probe if coarser else None)
             one_pass = config.model_copy(update={"passes": 1})
             probed = refine_passes(frames, T_start, matcher, self.support, one_pass, rng, alternatives, held)
             T_start, alternatives = probed.T_cam_lidar, []
         restarted = None  # the passes that ran the δt restarts, where a pyramid level did
         timed_from = self.config.time_offset.from_px
         for focal in pyramid:  # the edge matcher coarse to fine, δt held until `time_offset.from_px`
-            fine = self.config.fine_from_px is not None and focal >= self.config.fine_from_px
-            matcher, level_config = self._level(focal, fine)
-            timed = timing is not None and timed_from is not None and focal >= timed_from
+            matcher, level_config = self._level(focal, _from(focal, self.config.fine_from_px))
+            timed = timing is not None and _from(focal, timed_from)
             level = refine_passes(
                 frames, T_start, matcher, self.support, level_config, rng, timing=timing if timed else held
             )
@@ -440,6 +442,12 @@ class OnlineCalibrator:
             return None
         # no δt restarts: the running estimate is tracked across windows
         return scan_timing(self._buffer, motions, cfg, self._state.time_offset_s, restarts=False)[0]
+
+
+def _from(focal: float, floor: float | None) -> bool:
+    """Whether a level at working focal length ``focal`` is at or above ``floor`` (a config's
+    ``*_from_px``; ``None``: no level is)."""
+    return floor is not None and focal >= floor
 
 
 def _stamp_offset(frames: list[Frame]) -> float | None:

@@ -210,8 +210,8 @@ class CalibrateConfig(BaseModel):
         "coarse to fine; those from 90 % of the finest level's (`finest_focal_px`, or the camera's "
         "own where that is shorter) up are skipped; empty: none), each going on from the last, "
         "after the start (initial or coarse) is chosen by one pass at the finest level (or "
-        "`probe_focal_px`): its windows and "
-        "search range, in working pixels, span 4x the angles at 90 px. "
+        "`probe_focal_px`): its windows and search range, in working pixels, span 4x the angles "
+        "at 90 px. "
         "Six real KITTI frames, 20 draws each (README): from 2° / 10 cm 19 of 20 within 5 cm / 0.5° "
         "(13 without), median 2.50 cm against 4.15; from 10° / 50 cm 19 of 20 (18, one 36 cm off "
         "without); 16 s per calibration against 11",
