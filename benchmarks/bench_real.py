@@ -76,6 +76,7 @@ VARIANTS = {
     "global-pyramid-fullres-iw25": "global+pyramid+dense at full resolution, intensity edges 0.25",
     "global-pyramid-fullres-iwfine": "global+pyramid+dense at full resolution, its intensity edges 0.25",
     "global-pyramid-fullres-iwfine360": "global+pyramid+dense at full resolution, 360 px on: intensity 0.25",
+    "global-pyramid-fullres-f540-iwfine360": "global+pyramid+dense at 540 px, 360 px on: intensity 0.25",
 }
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
@@ -85,6 +86,8 @@ FULLRES_FOCAL_PX = 721.5
 """The ``fullres`` variants' finest working focal length (KITTI's native): the packaged finest
 level becomes one more pyramid level before it (on one frame too), and the probe of the starts
 runs there."""
+MIDRES_FOCAL_PX = 540.0
+"""The ``f540`` variants' finest working focal length instead (0.56x full resolution's pixels)."""
 TIMED_FROM_PX = 180.0
 """The ``fullres`` variants' ``time_offset.from_px`` (the others estimate δt, and restart it, at
 the finest level alone)."""
@@ -127,7 +130,8 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
         finest = probe = few_from = timed_from = None  # the finest passes at edge's 360 px
         edge = base.edge.model_copy(update={"intensity_weight": INTENSITY_WEIGHT})
         if "fullres" in stages:
-            pyramid, finest = (*pyramid, edge.working_focal_px), FULLRES_FOCAL_PX
+            pyramid = (*pyramid, edge.working_focal_px)
+            finest = MIDRES_FOCAL_PX if "f540" in stages else FULLRES_FOCAL_PX
             probe = few_from = edge.working_focal_px  # one frame too: 360 px, then full resolution
             timed_from = TIMED_FROM_PX
         if "iw25" in stages:

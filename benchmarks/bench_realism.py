@@ -43,6 +43,7 @@ from rich.console import Console
 
 from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import check_fixtures, realdata_root
+from calib.features import ring_stripes
 from calib.match.edge_matcher import EdgeMatcher
 from calib.refine.passes import load_calibrate_config
 from calib.synth.generate import Synthesizer
@@ -88,6 +89,14 @@ def stats(errors: np.ndarray, focal_px: float | np.ndarray) -> dict:
     }
 
 
+def stripes(frames: list[Frame]) -> float | None:
+    """The median over ``frames`` of :func:`~calib.features.ring_stripes` (how striped along the
+    scan lines the levelled intensity stays: about 1 for gains alone); ``None`` where no scan
+    tells."""
+    ratios = [r for f in frames if (r := ring_stripes(f.points)) is not None]
+    return float(np.median(ratios)) if ratios else None
+
+
 def real_rows(matcher: EdgeMatcher, work: Path) -> dict:
     """Per real fixture its stats and frame facts, and ``kitti-pooled``: the KITTI fixtures'
     correspondences together."""
@@ -103,7 +112,12 @@ def real_rows(matcher: EdgeMatcher, work: Path) -> dict:
             kitti.append(errors)
             kitti_focal.append(np.full(len(errors), focal))
         H, W = frames[0].image.shape[:2]
-        rows[fixture.name] = {"frames": len(frames), "size": f"{W}x{H}", **stats(errors, focal)}
+        rows[fixture.name] = {
+            "frames": len(frames),
+            "size": f"{W}x{H}",
+            "ring_stripes": stripes(frames),
+            **stats(errors, focal),
+        }
         console.print(f"{fixture.name}: {len(errors)} correspondences in {time.perf_counter() - clock:.1f} s")
     rows["kitti-pooled"] = {
         "frames": sum(rows[n]["frames"] for n in KITTI),
@@ -129,12 +143,13 @@ def synthetic_row(
     if effects is not None:
         overrides["camera_effects"] = effects
     config = load_synth_config(world, **overrides)
-    errors = []
+    errors, ratios = [], []
     for seed in seeds:
         clock = time.perf_counter()
         synth = Synthesizer(config, frames, seed=seed)
         seq = [synth.render(i).frame for i in range(frames)]
         errors.append(endpoint_errors(matcher, seq, synth.T_cam_lidar))
+        ratios += [r for f in seq if (r := ring_stripes(f.points)) is not None]
         console.print(
             f"{world} seed {seed}: {len(errors[-1])} correspondences in {time.perf_counter() - clock:.1f} s"
         )
@@ -143,6 +158,7 @@ def synthetic_row(
         "frames": frames * len(seeds),
         "size": f"{c.width}x{c.height}",
         "camera_effects": config.camera_effects.model_dump(),
+        "ring_stripes": float(np.median(ratios)) if ratios else None,
         **stats(np.concatenate(errors), c.fx),
     }
 
@@ -163,13 +179,13 @@ def line(name: str, row: dict, reference: float | None = None) -> str:
     return (
         f"{name:34s} {row['size']:>9s} {row['focal_px']:7.1f} {row['frames']:3d} {row['correspondences']:6d} "
         f"{_f(px['median'])} {_f(px['mean'])} {_f(px['p90'])} {_f(mrad['median'], '6.2f')} "
-        f"{_f(reference, '7.2f')} {_f(ratio, '6.2f')}"
+        f"{_f(reference, '7.2f')} {_f(ratio, '6.2f')} {_f(row.get('ring_stripes'), '7.2f')}"
     )
 
 
 HEADER = (
     f"{'dataset':34s} {'size':>9s} {'f px':>7s} {'fr':>3s} {'corr':>6s} {'med px':>6s} {'mean':>6s} "
-    f"{'p90':>6s} {'med mr':>6s} {'real px':>7s} {'ratio':>6s}"
+    f"{'p90':>6s} {'med mr':>6s} {'real px':>7s} {'ratio':>6s} {'stripes':>7s}"
 )
 
 

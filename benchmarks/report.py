@@ -292,7 +292,10 @@ def realism() -> list[str]:
         "",
         "The EdgeMatcher's endpoint error under the reference extrinsic (full-resolution pixels and "
         "milliradians; median / mean / 90th percentile over the correspondences). Ratio: the real KITTI "
-        f"median over the synthetic one; the goal is at most {result['target_ratio']:g}.",
+        f"median over the synthetic one; the goal is at most {result['target_ratio']:g}. Ring stripes: "
+        "how striped along the scan lines the LiDAR's intensity stays once each laser's gain is levelled "
+        "(`calib.features.ring_stripes`, median over the frames; about 1 for lasers that differ by a gain "
+        "alone).",
         "",
     ]
     rows = []
@@ -310,9 +313,11 @@ def realism() -> list[str]:
                     else "–",
                     f"{mrad['median']:.2f}" if mrad["median"] is not None else "–",
                     f"{ratio:.2f}" if ratio is not None else "",
+                    f"{row['ring_stripes']:.2f}" if row.get("ring_stripes") is not None else "–",
                 ]
             )
-    return lines + _table(["dataset", "size", "correspondences", "px", "mrad median", "ratio"], rows)
+    header = ["dataset", "size", "correspondences", "px", "mrad median", "ratio", "ring stripes"]
+    return lines + _table(header, rows)
 
 
 def check() -> list[str]:

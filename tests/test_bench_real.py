@@ -174,3 +174,27 @@ def test_the_packaged_variant_is_the_packaged_config():
     old = configs["global-pyramid"]
     assert old.finest_focal_px is None and old.pyramid_focals_px == (90.0, 180.0)
     assert old.fine_intensity_weight is None and old.time_offset.from_px is None
+
+
+def test_the_540_px_variant_differs_from_the_packaged_config_only_in_its_finest_level():
+    from calib.refine.passes import load_calibrate_config
+
+    variant = bench_real.variant_configs(["global-pyramid-fullres-f540-iwfine360"])
+    config = variant["global-pyramid-fullres-f540-iwfine360"]
+    assert config.finest_focal_px == bench_real.MIDRES_FOCAL_PX
+    assert config.model_copy(update={"finest_focal_px": 721.5}) == load_calibrate_config()
+
+
+def test_realism_table_shows_each_rows_ring_stripes(monkeypatch):
+    px = {"median": 1.5, "mean": 2.0, "p90": 4.0}
+    row = {"size": "1242x375", "correspondences": 10, "px": px, "mrad": px}
+    result = {
+        "target_ratio": 1.5,
+        "real": {"kitti-raw-0928": {**row, "ring_stripes": 1.34}},
+        "synthetic": {"synth-urban (effects)": {**row, "ratio": 1.0, "ring_stripes": None}},
+    }
+    monkeypatch.setattr(report, "_load", lambda name: result if name == "bench_realism" else None)
+    text = "\n".join(report.realism())
+    assert "| dataset | size | correspondences | px | mrad median | ratio | ring stripes |" in text
+    assert "| kitti-raw-0928 | 1242x375 | 10 | 1.50 / 2.00 / 4.00 | 1.50 |  | 1.34 |" in text
+    assert "| synth-urban (effects) | 1242x375 | 10 | 1.50 / 2.00 / 4.00 | 1.50 | 1.00 | – |" in text

@@ -7,6 +7,7 @@ from calib.features import (
     level_laser_gains,
     ring_spacing_deg,
     ring_spacing_profile,
+    ring_stripes,
     scan_lines,
 )
 
@@ -157,3 +158,32 @@ def test_level_laser_gains_keeps_scans_it_cannot_split():
     shuffled = points[np.random.default_rng(0).permutation(len(points))]
     np.testing.assert_array_equal(level_laser_gains(shuffled), shuffled.astype(np.float32))
     np.testing.assert_array_equal(level_laser_gains(points[:, :3]), points[:, :3].astype(np.float32))
+
+
+def _noisy(points: np.ndarray, seed: int = 3) -> np.ndarray:
+    """``points`` with 2 % multiplicative noise on the intensity (a return's own scatter)."""
+    noisy = points.copy()
+    noisy[:, 3] *= np.exp(np.random.default_rng(seed).normal(0.0, 0.02, len(points)))
+    return noisy
+
+
+def test_ring_stripes_near_one_where_the_lasers_differ_by_a_gain_alone():
+    points, _ = _striped_scan(np.exp(np.random.default_rng(1).normal(0.0, 0.15, 32)))
+    assert 0.9 < ring_stripes(_noisy(points)) < 1.2
+
+
+def test_ring_stripes_sees_gains_that_vary_with_range():
+    """A gain per laser that also changes with range (``(r / 12)^α``, ``α`` per laser) cannot be
+    levelled by one factor per laser: stripes stay, and the ratio rises far above 1."""
+    points, _ = _striped_scan(np.exp(np.random.default_rng(1).normal(0.0, 0.15, 32)))
+    laser = np.arange(len(points)) // (len(points) // 32)
+    alpha = np.random.default_rng(2).normal(0.0, 1.0, 32)
+    striped = points.copy()
+    striped[:, 3] *= (np.linalg.norm(points[:, :3], axis=1) / 12.0) ** alpha[laser]
+    assert ring_stripes(_noisy(striped)) > 2 * ring_stripes(_noisy(points))
+
+
+def test_ring_stripes_none_where_lines_or_intensity_are_missing():
+    points, _ = _striped_scan(np.ones(32))
+    assert ring_stripes(points[np.random.default_rng(0).permutation(len(points))]) is None
+    assert ring_stripes(points[:, :3]) is None
