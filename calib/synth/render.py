@@ -105,6 +105,9 @@ class Lidar:
         error -= error.mean(axis=1, keepdims=True)
         elevation = np.arcsin(np.clip(self.directions[:, 2], -1, 1)) + error[0, self.ring]
         self.cast_directions = beam_directions(elevation, azimuth + error[1, self.ring])
+        # each laser's gain changes with range too, (r / 10 m)^α (drawn last: the rig's other
+        # properties stay those of the same seed without it)
+        self.gain_exponent = rig.normal(0.0, config.laser_gain_range_std, config.beams)
         self.azimuth_steps = len(self.directions) // config.beams
         # The sweep turns from +π to -π and passes forward (azimuth 0) at the scan's stamp
         self.times = -azimuth / (2 * np.pi) * period_s
@@ -127,7 +130,8 @@ class Lidar:
             hits.material[valid], points, hits.normal[valid], hits.instance[valid], self.seed, color=False
         )
         incidence = -np.einsum("ij,ij->i", hits.normal[valid], directions[valid])
-        gain = self.gain[self.ring[valid]]
+        ring = self.ring[valid]
+        gain = self.gain[ring] * (r[valid] / 10.0) ** self.gain_exponent[ring]
         intensity = np.clip(reflectance * incidence * gain + rng.normal(0, 0.01, valid.sum()), 0, 1)
         # Weak returns (dark, grazing or far) are lost: keep-probability rises with the signal
         signal = intensity * np.minimum(1.0, (25.0 / r[valid]) ** 2)

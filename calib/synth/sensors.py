@@ -48,6 +48,16 @@ class LidarConfig(BaseModel):
         "answer one surface differently (KITTI's HDL-64: 0.14), which draws intensity edges "
         "along the scan lines",
     )
+    laser_gain_range_std: float = Field(
+        0.0,
+        ge=0,
+        le=2,
+        description="std of each laser's exponent α in a gain that also varies with range, "
+        "(r / 10 m)^α, fixed per rig: real lasers' intensity curves differ with range and "
+        "brightness, so levelling one gain per laser leaves stripes along the scan lines "
+        "(calib.features.ring_stripes: KITTI's HDL-64 1.2-1.4, PJLab 1.7-2.2; 0.3 gives these "
+        "worlds 1.3-1.4, bench_realism)",
+    )
     laser_angle_std_deg: float = Field(
         0.12,
         ge=0,

@@ -161,10 +161,10 @@ def load_synth_config(
 
     Args:
         small: render with :data:`SMALL_CAMERA` (624x188) instead of the file's camera, and
-            without the file's ``camera_effects``, scan motion distortion and laser angle errors
-            (the shipped models were trained on clean small frames, the fast tests pin the
-            matcher's accuracy on them, and the effects' strengths are tuned at real pixel
-            scale); applied before ``overrides``, so an override still wins.
+            without the file's ``camera_effects``, scan motion distortion, laser angle errors and
+            range-dependent laser gains (the shipped models were trained on clean small frames,
+            the fast tests pin the matcher's accuracy on them, and the effects' strengths are
+            tuned at real pixel scale); applied before ``overrides``, so an override still wins.
         overrides: top-level groups to replace, as dicts merged over the file's (e.g.
             ``wind={"amplitude_m": 0}``).
 
@@ -183,7 +183,7 @@ def load_synth_config(
         data["camera"] = dict(SMALL_CAMERA)
         data.pop("camera_effects", None)
         data["timing"] = {**data.get("timing", {}), "motion_distortion": False}
-        data["lidar"] = {**data.get("lidar", {}), "laser_angle_std_deg": 0.0}
+        data["lidar"] = {**data.get("lidar", {}), "laser_angle_std_deg": 0.0, "laser_gain_range_std": 0.0}
     for key, value in overrides.items():
         data[key] = {**data.get(key, {}), **value}
     return validate(SynthConfig, data, path)

@@ -11,7 +11,7 @@ import torch
 from calib.data import open_dataset
 from calib.data.label_agreement import sequence_label_agreement
 from calib.errors import DataError
-from calib.features import level_laser_gains, scan_lines
+from calib.features import level_laser_gains, ring_stripes, scan_lines
 from calib.geometry import calibration_error, perturb
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, reference_extrinsic, write_sequence
 from calib.synth.render import Lidar
@@ -68,7 +68,8 @@ def test_each_laser_has_its_own_intensity_gain_and_levelling_finds_it(world):
     LiDAR's gains are a property of the rig, and levelling recovers them from one scan."""
 
     def implied_gains(std):
-        synth = Synthesizer(small(world, lidar={**SMALL["lidar"], "laser_gain_std": std}), 1, seed=4)
+        lidar = {**SMALL["lidar"], "laser_gain_std": std, "laser_gain_range_std": 0.0}
+        synth = Synthesizer(small(world, lidar=lidar), 1, seed=4)
         points = synth.render(0).frame.points
         line = scan_lines(points)
         assert line is not None and line.max() + 1 == 32  # every laser returns in these worlds
@@ -81,6 +82,22 @@ def test_each_laser_has_its_own_intensity_gain_and_levelling_finds_it(world):
     implied, true = implied_gains(0.0)
     np.testing.assert_array_equal(true, 0.0)
     assert np.std(implied) < 0.05
+
+
+@pytest.mark.parametrize("world", ["vineyard", "urban"])
+def test_range_dependent_laser_gains_leave_stripes_that_levelling_cannot_remove(world):
+    """A gain that changes with range differently for each laser (real intensity curves) stays
+    striped along the scan lines once one gain per laser is levelled; without it the levelled
+    scan is not (``ring_stripes`` near 1), and the small worlds leave it out."""
+
+    def stripes(std):
+        lidar = {**SMALL["lidar"], "laser_gain_range_std": std}
+        return ring_stripes(Synthesizer(small(world, lidar=lidar), 1, seed=4).render(0).frame.points)
+
+    assert stripes(0.0) < 1.2
+    assert stripes(0.3) > stripes(0.0) + 0.3
+    assert load_synth_config(world, small=True).lidar.laser_gain_range_std == 0.0
+    assert load_synth_config(world).lidar.laser_gain_range_std > 0
 
 
 def test_laser_angle_errors_belong_to_the_rig_and_leave_the_extrinsic_true():
