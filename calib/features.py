@@ -208,15 +208,24 @@ def scan_lines(points_lidar: np.ndarray, min_lines: int = 8, backward_deg: float
     return line if same_way >= 0.9 and 0.5 <= ratio <= 2.0 else None
 
 
-def _sorted_lines(points: np.ndarray, line: np.ndarray, azimuth: np.ndarray) -> list[np.ndarray]:
-    """Each scan line's returns with some intensity, by azimuth (lines are contiguous runs)."""
+def _lines_of(
+    points: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]] | None:
+    """A scan stored line by line as its returns' line index (:func:`scan_lines`), azimuth (°),
+    range and log intensity, each ``(N,)``, and each line's returns with some intensity, by
+    azimuth; ``None`` for a scan stored otherwise or without intensity."""
+    line = scan_lines(points) if points.ndim == 2 and points.shape[1] > 3 else None
+    if line is None:
+        return None
+    xyz = points[:, :3].astype(np.float64)
+    azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
     bright = points[:, 3] > 0
-    bounds = np.concatenate([[0], np.cumsum(np.bincount(line))])
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(line))])  # lines are contiguous runs
     lines = []
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
         members = np.arange(a, b)[bright[a:b]]
         lines.append(members[np.argsort(azimuth[members])])
-    return lines
+    return line, azimuth, np.linalg.norm(xyz, axis=1), np.log(np.maximum(points[:, 3], 1e-6)), lines
 
 
 def _same_surface_mates(
@@ -261,14 +270,10 @@ def level_laser_gains(
         ``(N, 4)`` float32 copy with levelled intensity.
     """
     points = np.array(points_lidar, np.float32)
-    line = scan_lines(points) if points.ndim == 2 and points.shape[1] > 3 else None
-    if line is None:
+    scan = _lines_of(points)
+    if scan is None:
         return points
-    xyz = points[:, :3].astype(np.float64)
-    azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
-    rng = np.linalg.norm(xyz, axis=1)
-    log_intensity = np.log(np.maximum(points[:, 3], 1e-6))
-    lines = _sorted_lines(points, line, azimuth)
+    line, azimuth, rng, log_intensity, lines = scan
     log_gain = [0.0]
     for upper, lower in zip(lines[:-1], lines[1:], strict=True):
         below, mate = _same_surface_mates(upper, lower, azimuth, rng, max_azimuth_gap_deg, surface_tol)
@@ -293,23 +298,18 @@ def ring_stripes(points_lidar: np.ndarray, surface_tol: float = 0.05, min_pairs:
     differs a little more than between returns 0.2° apart; rings farther apart read higher from
     the texture alone: nuScenes' 32, 1.3° apart, about 11); more where their differences vary
     with range or brightness, which levelling one gain per laser leaves as stripes (the matcher's
-    intensity edges along the rings, which follow the LiDAR's tilt). Returns meet one surface
-    where their azimuths lie within 1.5 of the scan's azimuth steps and their ranges within
-    ``surface_tol``. ``None`` for a scan not stored line by line, without intensity, or with
-    fewer than ``min_pairs`` pairs of either kind.
+    intensity edges along the rings, which follow the LiDAR's tilt). Two returns meet one surface
+    where their azimuths lie less than 1.5 of the scan's median azimuth steps apart and their
+    ranges within ``surface_tol`` of each other. ``None`` for a scan not stored line by line,
+    without intensity, or with fewer than ``min_pairs`` pairs of either kind.
 
     Args:
         points_lidar: ``(N, 4)`` points with intensity in stored order.
     """
-    points = level_laser_gains(points_lidar)
-    line = scan_lines(points) if points.ndim == 2 and points.shape[1] > 3 else None
-    if line is None:
+    scan = _lines_of(level_laser_gains(points_lidar))
+    if scan is None:
         return None
-    xyz = points[:, :3].astype(np.float64)
-    azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
-    rng = np.linalg.norm(xyz, axis=1)
-    log_intensity = np.log(np.maximum(points[:, 3], 1e-6))
-    lines = _sorted_lines(points, line, azimuth)
+    _, azimuth, rng, log_intensity, lines = scan
     steps = np.concatenate([np.diff(azimuth[run]) for run in lines])
     gap = 1.5 * float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0
     across = [

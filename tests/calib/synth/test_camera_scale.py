@@ -30,11 +30,12 @@ def test_small_gives_the_old_camera_without_effects_and_leaves_the_rest(world):
     assert not small.timing.motion_distortion
     assert full.timing.motion_distortion == (world == "urban")  # KITTI's scans are not de-skewed
     assert small.lidar.laser_angle_std_deg == 0.0 < full.lidar.laser_angle_std_deg
+    assert small.lidar.laser_gain_range_std == 0.0 < full.lidar.laser_gain_range_std
     exclude = {
         "camera": True,
         "camera_effects": True,
         "timing": {"motion_distortion"},
-        "lidar": {"laser_angle_std_deg"},
+        "lidar": {"laser_angle_std_deg", "laser_gain_range_std"},
     }
     assert small.model_dump(exclude=exclude) == full.model_dump(exclude=exclude)
     blurred = load_synth_config(world, small=True, camera_effects={"blur_px": 0.5})
