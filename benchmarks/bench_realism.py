@@ -89,11 +89,11 @@ def stats(errors: np.ndarray, focal_px: float | np.ndarray) -> dict:
     }
 
 
-def stripes(frames: list[Frame]) -> float | None:
-    """The median over ``frames`` of :func:`~calib.features.ring_stripes` (how striped along the
+def stripes(scans: list[np.ndarray]) -> float | None:
+    """The median over ``scans`` of :func:`~calib.features.ring_stripes` (how striped along the
     scan lines the levelled intensity stays: about 1 for gains alone); ``None`` where no scan
     tells."""
-    ratios = [r for f in frames if (r := ring_stripes(f.points)) is not None]
+    ratios = [r for points in scans if (r := ring_stripes(points)) is not None]
     return float(np.median(ratios)) if ratios else None
 
 
@@ -115,7 +115,7 @@ def real_rows(matcher: EdgeMatcher, work: Path) -> dict:
         rows[fixture.name] = {
             "frames": len(frames),
             "size": f"{W}x{H}",
-            "ring_stripes": stripes(frames),
+            "ring_stripes": stripes([f.points for f in frames]),
             **stats(errors, focal),
         }
         console.print(f"{fixture.name}: {len(errors)} correspondences in {time.perf_counter() - clock:.1f} s")
@@ -143,13 +143,13 @@ def synthetic_row(
     if effects is not None:
         overrides["camera_effects"] = effects
     config = load_synth_config(world, **overrides)
-    errors, ratios = [], []
+    errors, scans = [], []
     for seed in seeds:
         clock = time.perf_counter()
         synth = Synthesizer(config, frames, seed=seed)
         seq = [synth.render(i).frame for i in range(frames)]
         errors.append(endpoint_errors(matcher, seq, synth.T_cam_lidar))
-        ratios += [r for f in seq if (r := ring_stripes(f.points)) is not None]
+        scans += [f.points for f in seq]
         console.print(
             f"{world} seed {seed}: {len(errors[-1])} correspondences in {time.perf_counter() - clock:.1f} s"
         )
@@ -158,7 +158,7 @@ def synthetic_row(
         "frames": frames * len(seeds),
         "size": f"{c.width}x{c.height}",
         "camera_effects": config.camera_effects.model_dump(),
-        "ring_stripes": float(np.median(ratios)) if ratios else None,
+        "ring_stripes": stripes(scans),
         **stats(np.concatenate(errors), c.fx),
     }
 
