@@ -227,20 +227,26 @@ def project_scan(
         visibility: occlusion test; ``None`` keeps every point in front of the camera and inside
             the image (no occlusion handling).
     """
-    pts = torch.as_tensor(np.asarray(points_lidar, dtype=np.float64))
-    if pts.ndim != 2 or pts.shape[1] < 3:
-        raise ValueError(f"points_lidar must be (N, 3) or (N, 4), got {tuple(pts.shape)}")
-    points_cam = transform_points(torch.as_tensor(np.asarray(T_cam_lidar, np.float64)), pts[:, :3])
+    points = np.asarray(points_lidar, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] < 3:
+        raise ValueError(f"points_lidar must be (N, 3) or (N, 4), got {tuple(points.shape)}")
+    T_cam_lidar = np.asarray(T_cam_lidar, np.float64)
+    min_depth = (visibility or Visibility()).min_depth
+    # only points ahead of the camera can be seen (a sixth of a 360° scan on KITTI): the depth
+    # alone first, with a margin for its rounding; the exact test below decides
+    ahead = np.flatnonzero(points[:, :3] @ T_cam_lidar[2, :3] + T_cam_lidar[2, 3] > min_depth - 1e-6)
+    pts = torch.as_tensor(points[ahead])
+    points_cam = transform_points(torch.as_tensor(T_cam_lidar), pts[:, :3])
     uv, depth = project_points(points_cam, torch.as_tensor(np.asarray(K, np.float64)))
     if visibility is None:
         _, inside = _pixel_index(uv, image_size)
-        mask = inside & (depth > Visibility().min_depth)
+        mask = inside & (depth > min_depth)
     else:
         mask = zbuffer_visibility(uv, depth, image_size, visibility)
     index = torch.nonzero(mask).view(-1)
     intensity = pts[:, 3] if pts.shape[1] > 3 else torch.zeros(len(pts), dtype=pts.dtype)
     return ProjectedScan(
-        index=index.numpy(),
+        index=ahead[index.numpy()],
         uv=uv[index].numpy(),
         depth=depth[index].numpy(),
         intensity=intensity[index].numpy(),

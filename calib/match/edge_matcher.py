@@ -387,6 +387,7 @@ def _normalised_cost(lidar: np.ndarray, image: np.ndarray, radius: int, window: 
     C, H, W = lidar.shape
     count = np.outer(_window_counts(H, window), _window_counts(W, window))
     energy = np.pad(_box((image**2).sum(0, keepdims=True), window)[0], radius)  # zero outside
+    rms = np.sqrt(np.maximum(energy, 1e-12)) + 1e-3
     padded = np.pad(image, ((0, 0), (radius, radius), (radius, radius)))
     n = 2 * radius + 1
     out = np.empty((n * n, H, W), np.float32)
@@ -399,7 +400,7 @@ def _normalised_cost(lidar: np.ndarray, image: np.ndarray, radius: int, window: 
             product += lidar[c] * shifted[c]
         summed = cv2.boxFilter(product, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
         np.divide(summed, count, out=out[k])
-        out[k] /= np.sqrt(np.maximum(energy[dv : dv + H, du : du + W], 1e-12)) + 1e-3
+        out[k] /= rms[dv : dv + H, du : du + W]
     return out
 
 
