@@ -70,9 +70,17 @@ def speed() -> list[str]:
             rows.append([f"flow matcher, {name}", f"{ms:.0f} ms/frame (onnxruntime)"])
     if refine := _load("refine"):
         rows.append(["Stage 4 refinement (one solve)", f"{refine['sgis']['seconds_median']:.2f} s"])
+    sources = ("synth", "matcher", "predictor", "flow_matcher", "refine")
+    days = [f"{name} {_day(name)}" for name in sources if (RESULTS / f"{name}.json").is_file()]
+    note = ["", f"Measured on (each benchmark's results file): {', '.join(days)}."] if days else []
     return ["### Speed", ""] + (
-        _table(["what", "figure"], rows) if rows else ["(no speed benchmark has run)"]
+        _table(["what", "figure"], rows) + note if rows else ["(no speed benchmark has run)"]
     )
+
+
+def _day(name: str) -> str:
+    """The day ``results/NAME.json`` was written."""
+    return datetime.date.fromtimestamp((RESULTS / f"{name}.json").stat().st_mtime).isoformat()
 
 
 def accuracy() -> list[str]:
