@@ -87,6 +87,15 @@ def test_points_behind_camera_and_outside_image_dropped():
     proj = project_scan(pts, kitti_like_extrinsic(), KITTI_K, (188, 624))
     assert proj.index.tolist() == [0]
     assert proj.intensity.tolist() == [0.5]
+    # indices refer to the whole scan, whatever lies behind the camera before a visible point
+    mixed = np.array(
+        [[-5.0, 0, 0, 0.1], [5.0, 50.0, 0, 0.2], [5.0, 0, 0, 0.3], [-9.0, 1, 0, 0.4], [8.0, 1, 0, 0.6]]
+    )
+    proj = project_scan(mixed, kitti_like_extrinsic(), KITTI_K, (188, 624), visibility=None)
+    assert proj.index.tolist() == [2, 4]
+    assert proj.intensity.tolist() == [0.3, 0.6]
+    points_cam = mixed[[2, 4], :3] @ kitti_like_extrinsic()[:3, :3].T + kitti_like_extrinsic()[:3, 3]
+    assert np.allclose(proj.depth, points_cam[:, 2])
 
 
 def test_render_image_keeps_nearest_value_per_pixel():
