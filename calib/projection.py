@@ -232,8 +232,8 @@ def project_scan(
         raise ValueError(f"points_lidar must be (N, 3) or (N, 4), got {tuple(points.shape)}")
     T_cam_lidar = np.asarray(T_cam_lidar, np.float64)
     min_depth = (visibility or Visibility()).min_depth
-    # only points ahead of the camera can be seen (a sixth of a 360° scan on KITTI): the depth
-    # alone first, with a margin for its rounding; the exact test below decides
+    # only points ahead of the camera can be seen (half of a 360° scan): their depth alone
+    # first, with a margin for its rounding, and the projection of those; the exact test decides
     ahead = np.flatnonzero(points[:, :3] @ T_cam_lidar[2, :3] + T_cam_lidar[2, 3] > min_depth - 1e-6)
     pts = torch.as_tensor(points[ahead])
     points_cam = transform_points(torch.as_tensor(T_cam_lidar), pts[:, :3])
