@@ -370,8 +370,8 @@ def check() -> list[str]:
 
 def measured_on() -> str | None:
     """The day the newest results were written (not today: ``make report`` may run much later)."""
-    stamps = [p.stat().st_mtime for p in RESULTS.glob("*.json")]
-    return datetime.date.fromtimestamp(max(stamps)).isoformat() if stamps else None
+    days = [_day(p.stem) for p in RESULTS.glob("*.json")]
+    return max(days) if days else None
 
 
 def replace_section(readme: str, lines: list[str]) -> str:

@@ -245,8 +245,15 @@ def _same_surface_mates(
     return lower[pair], mate[pair]
 
 
+_GAP_DEG, _SURFACE_TOL, _MIN_PAIRS = 0.3, 0.05, 30
+""":func:`level_laser_gains`' defaults, which :func:`ring_stripes` levels with too."""
+
+
 def level_laser_gains(
-    points_lidar: np.ndarray, max_azimuth_gap_deg: float = 0.3, surface_tol: float = 0.05, min_pairs: int = 30
+    points_lidar: np.ndarray,
+    max_azimuth_gap_deg: float = _GAP_DEG,
+    surface_tol: float = _SURFACE_TOL,
+    min_pairs: int = _MIN_PAIRS,
 ) -> np.ndarray:
     """The scan with each laser's intensity gain levelled to its neighbours'.
 
@@ -271,8 +278,20 @@ def level_laser_gains(
     """
     points = np.array(points_lidar, np.float32)
     scan = _lines_of(points)
-    if scan is None:
-        return points
+    if scan is not None:
+        points[:, 3] = _levelled(points, scan, max_azimuth_gap_deg, surface_tol, min_pairs)
+    return points
+
+
+def _levelled(
+    points: np.ndarray,
+    scan: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]],
+    max_azimuth_gap_deg: float,
+    surface_tol: float,
+    min_pairs: int,
+) -> np.ndarray:
+    """``(N,)`` float32 intensity of ``points (N, 4)`` (float32) with each laser's gain levelled,
+    from the scan's :func:`_lines_of` (:func:`level_laser_gains` has the method)."""
     line, azimuth, rng, log_intensity, lines = scan
     log_gain = [0.0]
     for upper, lower in zip(lines[:-1], lines[1:], strict=True):
@@ -285,8 +304,7 @@ def level_laser_gains(
     # steeply, so read brighter), not their gains: only the departures from a line are levelled
     k = np.arange(len(log_gain))
     log_gain = np.array(log_gain) - np.polyval(np.polyfit(k, log_gain, 1), k)
-    points[:, 3] = points[:, 3] * np.exp(-log_gain[line]).astype(np.float32)
-    return points
+    return points[:, 3] * np.exp(-log_gain[line]).astype(np.float32)
 
 
 def ring_stripes(points_lidar: np.ndarray, surface_tol: float = 0.05, min_pairs: int = 100) -> float | None:
@@ -306,10 +324,13 @@ def ring_stripes(points_lidar: np.ndarray, surface_tol: float = 0.05, min_pairs:
     Args:
         points_lidar: ``(N, 4)`` points with intensity in stored order.
     """
-    scan = _lines_of(level_laser_gains(points_lidar))
+    points = np.array(points_lidar, np.float32)
+    scan = _lines_of(points)  # the lines, azimuths and ranges stay as levelling leaves them
     if scan is None:
         return None
-    _, azimuth, rng, log_intensity, lines = scan
+    _, azimuth, rng, _, lines = scan
+    levelled = _levelled(points, scan, _GAP_DEG, _SURFACE_TOL, _MIN_PAIRS)
+    log_intensity = np.log(np.maximum(levelled, 1e-6))
     steps = np.concatenate([np.diff(azimuth[run]) for run in lines])
     gap = 1.5 * float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0
     across = [
