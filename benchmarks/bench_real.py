@@ -77,6 +77,7 @@ VARIANTS = {
     "global-pyramid-fullres-iwfine": "global+pyramid+dense at full resolution, its intensity edges 0.25",
     "global-pyramid-fullres-iwfine360": "global+pyramid+dense at full resolution, 360 px on: intensity 0.25",
     "global-pyramid-fullres-f540-iwfine360": "global+pyramid+dense at 540 px, 360 px on: intensity 0.25",
+    "global-pyramid-fullres-iwfine360-ss4": "the same, edges drawn at 4 phases, kept within 4 px",
 }
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
@@ -96,6 +97,10 @@ INTENSITY_WEIGHT = 0.5
 LOW_INTENSITY_WEIGHT = 0.25
 """The ``iw25`` / ``iwfine`` variants' intensity edge weight:
 everywhere, at the finest level, or (``iwfine360``) from 360 px on."""
+SUPERSAMPLED = {"supersample": 4, "redraw_px": 4.0}
+"""The ``ss4`` variants' edge matcher: each scan's edges drawn at four sub-pixel phases of the
+grid and averaged, and kept while the view turns less than 4 px (``edge.supersample``,
+``edge.redraw_px``)."""
 ALL6 = "kitti-raw-0928-all6"
 KITTI_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
 ZED_HALF = {"width": 960, "height": 540, "fx": 527.0, "fy": 527.0, "cx": 479.5, "cy": 269.5}
@@ -136,6 +141,8 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
             timed_from = TIMED_FROM_PX
         if "iw25" in stages:
             edge = edge.model_copy(update={"intensity_weight": LOW_INTENSITY_WEIGHT})
+        if "ss4" in stages:
+            edge = edge.model_copy(update=SUPERSAMPLED)
         fine_weight = LOW_INTENSITY_WEIGHT if "iwfine" in stages or "iwfine360" in stages else None
         fine_from = edge.working_focal_px if "iwfine360" in stages else None
         return base.model_copy(

@@ -13,11 +13,14 @@ from calib.errors import DataError
 from calib.geometry import perturb
 from calib.match.correspondences import Correspondences, match_frames
 from calib.match.edge_matcher import (
+    RIGID_TOL_M,
     EdgeMatcher,
     EdgeMatcherConfig,
+    VirtualView,
     _box,
     _depth_model_fit,
     _nearest_seeds,
+    _rigid_motion,
     lidar_edges,
     lidar_field,
 )
@@ -258,6 +261,100 @@ def test_lidar_field_has_no_parallax_halo():
     scan = project_scan(points, T, K, (200, 640), Visibility(window=3))
     old = profile(lidar_edges(scan, points, T, K)[0])
     assert old[strip].max() > 0.5 * old[near].max()
+
+
+def _board_camera(phase: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
+    """``T_cam_lidar`` of a camera 27 cm ahead of and 30 cm left of the LiDAR, ``K`` of a
+    640x200 image whose principal point lies ``phase`` px right of and below (320, 100), and
+    the column of :func:`_board_scan`'s left edge in it."""
+    R = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ np.array([0.27, 0.3, 0.0])
+    K = np.array([[360.0, 0, 320 + phase], [0, 360, 100 + phase], [0, 0, 1]])
+    return T, K, K[0, 2] + 360 * (-(0.5 - 0.3) / (5 - 0.27))
+
+
+def _edge_column(field: np.ndarray, edge_u: float) -> float:
+    """The centroid of ``field``'s strength within 3 px of column ``edge_u``, over rows 90-110."""
+    u = np.arange(field.shape[2], dtype=float)
+    profile, near = np.abs(field[:, 90:110]).sum((0, 1)), np.abs(u - edge_u) < 3
+    return float((profile * u)[near].sum() / profile[near].sum())
+
+
+@pytest.mark.parametrize(("supersample", "spread_px"), [(1, (0.5, 0.8)), (4, (0.0, 0.2))])
+def test_supersampled_edges_follow_the_grid_s_phase(supersample, spread_px):
+    """A return is drawn at the pixel it falls in, so an edge's position jumps with the grid's
+    sub-pixel phase (0.66 px here over eight phases); drawn at four phases and averaged, it
+    follows the phase to within 0.2 px."""
+    errors = []
+    for phase in np.arange(0, 1, 0.125):
+        T, K, edge_u = _board_camera(phase)
+        config = EdgeMatcherConfig(supersample=supersample)
+        field, _ = VirtualView.draw(_board_scan(), T[:3, :3], K, (200, 640), config).seen_from(T, K)
+        errors.append(_edge_column(field, edge_u) - edge_u)
+    assert spread_px[0] <= np.ptp(errors) <= spread_px[1]
+    assert np.abs(errors).max() < 0.5
+
+
+def test_a_view_drawn_under_another_orientation_is_carried_to_this_one():
+    """Drawn 0.5° (3 px) away and carried, the board's edge lies where it lies in the camera
+    (within the 0.2 px a four-phase drawing leaves), as in a view drawn under the orientation
+    itself, and the two fields agree."""
+    T, K, edge_u = _board_camera()
+    turned = T.copy()
+    turned[:3, :3] = cv2.Rodrigues(np.radians([0.0, 0.5, 0.0]))[0] @ T[:3, :3]
+    config = EdgeMatcherConfig(supersample=4)
+    carried, inverse_carried = VirtualView.draw(
+        _board_scan(), turned[:3, :3], K, (200, 640), config
+    ).seen_from(T, K)
+    direct, inverse_direct = lidar_field(_board_scan(), T, K, (200, 640), config)
+    assert abs(_edge_column(carried, edge_u) - edge_u) < 0.2
+    assert abs(_edge_column(direct, edge_u) - edge_u) < 0.2
+    inner = (slice(None), slice(20, 180), slice(20, 620))
+    agreement = (carried * direct)[inner].sum() / np.sqrt(
+        (carried**2)[inner].sum() * (direct**2)[inner].sum()
+    )
+    assert agreement > 0.8
+    assert np.mean(np.abs(inverse_carried - inverse_direct)[20:180, 20:620] < 1e-3) > 0.98
+
+
+def test_a_rigid_motion_between_two_copies_of_a_scan_is_found_and_a_bent_one_is_not():
+    rng = np.random.default_rng(0)
+    before = rng.uniform(-20, 20, (5000, 3))
+    motion = np.eye(4)
+    motion[:3, :3] = cv2.Rodrigues(np.array([0.01, -0.02, 0.03]))[0]
+    motion[:3, 3] = [0.1, -0.05, 0.02]
+    after = before @ motion[:3, :3].T + motion[:3, 3]
+    np.testing.assert_allclose(_rigid_motion(before, after), motion, atol=1e-9)
+    np.testing.assert_array_equal(_rigid_motion(before, before), np.eye(4))
+    bent = after.copy()
+    bent[123] += [0.0, 0.0, 3 * RIGID_TOL_M]
+    assert _rigid_motion(before, bent) is None
+    assert _rigid_motion(before, after[1:]) is None
+
+
+def test_a_matcher_draws_a_scan_once_while_only_the_translation_changes(still_vineyard):
+    """The virtual view does not depend on the translation: matched under a moved translation
+    with the view kept (``redraw_px`` > 0), the answer equals a matcher's that draws anew; a
+    turn past ``redraw_px`` draws again."""
+    frame = still_vineyard[1]
+    T = frame.calibration.T_cam_lidar
+    moved = T.copy()
+    moved[:3, 3] += [0.02, -0.03, 0.05]
+    keeping = EdgeMatcher(EdgeMatcherConfig(redraw_px=4.0))
+    keeping.match(frame, T)
+    again, fresh = (
+        keeping.match(frame, moved),
+        EdgeMatcher(EdgeMatcherConfig(redraw_px=0.0)).match(frame, moved),
+    )
+    np.testing.assert_array_equal(again.index, fresh.index)
+    np.testing.assert_array_equal(again.uv_matched, fresh.uv_matched)
+    assert [len(views) for views in keeping._views.values()] == [1]
+    turned = moved.copy()
+    turned[:3, :3] = cv2.Rodrigues(np.radians([0.0, 2.0, 0.0]))[0] @ moved[:3, :3]  # 12 px at f = 360
+    keeping.match(frame, turned)
+    assert [len(views) for views in keeping._views.values()] == [2]
 
 
 def _wall_scan(elevations_deg: np.ndarray) -> np.ndarray:
