@@ -113,9 +113,9 @@ class EdgeMatcherConfig(BaseModel):
         1,
         description="a scan's edges are drawn at this many sub-pixel phases of the pixel grid and "
         "averaged (VirtualView.draw): a return is drawn at the pixel it falls in, half a pixel off "
-        "at worst, and the phases average that (README: with 4 and redraw_px 4, synthetic urban "
-        "from 10° / 50 cm 17 of 20 draws within 2 cm / 0.2°, 10 without; the six KITTI frames "
-        "from 2° end 2.64 cm from the reference, median, against 2.01, their spread halved)",
+        "at worst, and the phases average that (README: with 4 and redraw_px 4 the six KITTI frames "
+        "from 2° scatter half as much but end 2.64 cm from the reference, median, against 2.01; "
+        "synthetic urban from 10° / 50 cm 17 of 20 draws within 2 cm / 0.2° either way)",
     )
     redraw_px: NonNegativeFloat = Field(
         0.0,
