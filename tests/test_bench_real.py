@@ -111,6 +111,19 @@ def test_report_has_a_real_data_table(monkeypatch):
     )
 
 
+def test_report_names_the_worlds_of_a_synthetic_row(monkeypatch):
+    """A synthetic row's success depends on its worlds as much as on the method, so the table
+    names the seeds its runs drew."""
+    result = _result("kitti-raw-0928-all6", 3)
+    entry = result["real"].pop("kitti-raw-0928-all6")
+    entry["levels"]["2"]["dense"]["runs"] = [{**_run(1.0, 0.1), "seed": s} for s in (202, 201, 202)]
+    result["synthetic"]["synth-urban-offset0"] = entry
+    monkeypatch.setattr(report, "_load", lambda name: result if name == "bench_real" else None)
+    assert "| synth-urban-offset0 (seeds 201, 202) | 6 | 2° / 10 cm | dense | 3 |" in "\n".join(
+        report.real_data()
+    )
+
+
 def _fake_run(frames, T_start, T_ref, config, seed):
     """A stand-in for a calibration: its 'final error' is the start's, so runs are told apart."""
     start = calibration_error(T_start, T_ref)
