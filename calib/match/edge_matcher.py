@@ -703,6 +703,12 @@ class EdgeMatcher:
             the view, and ``(4, 4)`` the extrinsic that sees its scan as ``T_cam_lidar`` sees
             ``points_lidar``.
         """
+        T_cam_lidar = np.asarray(T_cam_lidar, np.float64)
+        if self.config.redraw_px == 0:
+            features = self.scan_features(points_lidar)
+            return VirtualView.draw(
+                points_lidar, T_cam_lidar[:3, :3], K, image_size, self.config, features
+            ), T_cam_lidar
         xyz = np.asarray(points_lidar[:, :3], np.float64)
         digest = hashlib.blake2b(np.ascontiguousarray(points_lidar[:, 3:]).tobytes(), digest_size=16).digest()
         key = (len(points_lidar), digest, K.tobytes(), tuple(image_size))
@@ -712,29 +718,22 @@ class EdgeMatcher:
         for xyz_drawn, view in drawn:
             motion = _rigid_motion(xyz_drawn, xyz)  # drawn points → these
             if motion is not None:
-                T_drawn = np.asarray(T_cam_lidar, np.float64) @ motion
+                T_drawn = T_cam_lidar @ motion
                 turn = view.turn_px(T_drawn[:3, :3], K)
                 if turn <= self.config.redraw_px and (best is None or turn < best[0]):
                     best = (turn, view, T_drawn)
         if best is not None:
             return best[1], best[2]
-        view = VirtualView.draw(
-            points_lidar,
-            np.asarray(T_cam_lidar)[:3, :3],
-            K,
-            image_size,
-            self.config,
-            self.scan_features(points_lidar),
-        )
-        if self.config.redraw_px > 0:
-            with self._lock:
-                self._views.setdefault(key, []).append((xyz, view))
-                self._views.move_to_end(key)
-                if len(self._views[key]) > VIEWS_PER_SCAN:
-                    self._views[key].pop(0)
-                if len(self._views) > self._cache_size:
-                    self._views.popitem(last=False)
-        return view, np.asarray(T_cam_lidar, np.float64)
+        features = self.scan_features(points_lidar)
+        view = VirtualView.draw(points_lidar, T_cam_lidar[:3, :3], K, image_size, self.config, features)
+        with self._lock:
+            self._views.setdefault(key, []).append((xyz, view))
+            self._views.move_to_end(key)
+            if len(self._views[key]) > VIEWS_PER_SCAN:
+                self._views[key].pop(0)
+            if len(self._views) > self._cache_size:
+                self._views.popitem(last=False)
+        return view, T_cam_lidar
 
     def with_config(self, config: EdgeMatcherConfig) -> EdgeMatcher:
         """A matcher with ``config`` (another working focal length, say) that shares this one's
