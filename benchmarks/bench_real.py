@@ -77,7 +77,9 @@ VARIANTS = {
     "global-pyramid-fullres-iwfine": "global+pyramid+dense at full resolution, its intensity edges 0.25",
     "global-pyramid-fullres-iwfine360": "global+pyramid+dense at full resolution, 360 px on: intensity 0.25",
     "global-pyramid-fullres-f540-iwfine360": "global+pyramid+dense at 540 px, 360 px on: intensity 0.25",
-    "global-pyramid-fullres-iwfine360-ss4": "the same, edges drawn at 4 phases, kept within 4 px",
+    "global-pyramid-fullres-iwfine360-ss4": (
+        "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
+    ),
 }
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
