@@ -632,6 +632,11 @@ RIGID_TOL_M = 1e-3  # a scan moved rigidly to within this is the same scan (0.07
 VIEWS_PER_SCAN = 4  # virtual views kept per scan (the probe's starts lie degrees apart)
 
 
+def _intensity_digest(points_lidar: np.ndarray) -> bytes:
+    """A digest of the scan's columns after x, y, z (which moving the points leaves as they are)."""
+    return hashlib.blake2b(np.ascontiguousarray(points_lidar[:, 3:]).tobytes(), digest_size=16).digest()
+
+
 def _rigid_motion(before: np.ndarray, after: np.ndarray) -> np.ndarray | None:
     """``(4, 4)`` the rigid motion taking the points ``before (N, 3)`` to ``after (N, 3)``, the same
     points in the same order (Kabsch on a subsample), or ``None`` where some point lies farther
@@ -684,10 +689,8 @@ class EdgeMatcher:
 
     def scan_features(self, points_lidar: np.ndarray) -> ScanFeatures:
         """:meth:`ScanFeatures.of` the scan ``(N, 3+)``, computed once per scan."""
-        intensity = np.ascontiguousarray(points_lidar[:, 3:])
         centre = np.rint(points_lidar[:, :3].mean(0)).tolist() if len(points_lidar) else []
-        digest = hashlib.blake2b(intensity.tobytes(), digest_size=16).digest()
-        key = (self.config.level_laser_gains, len(points_lidar), digest, *centre)
+        key = (self.config.level_laser_gains, len(points_lidar), _intensity_digest(points_lidar), *centre)
         return self._recall(
             self._scans, key, lambda: ScanFeatures.of(points_lidar, self.config.level_laser_gains)
         )
@@ -704,35 +707,32 @@ class EdgeMatcher:
             ``points_lidar``.
         """
         T_cam_lidar = np.asarray(T_cam_lidar, np.float64)
-        if self.config.redraw_px == 0:
-            features = self.scan_features(points_lidar)
-            return VirtualView.draw(
-                points_lidar, T_cam_lidar[:3, :3], K, image_size, self.config, features
-            ), T_cam_lidar
-        xyz = np.asarray(points_lidar[:, :3], np.float64)
-        digest = hashlib.blake2b(np.ascontiguousarray(points_lidar[:, 3:]).tobytes(), digest_size=16).digest()
-        key = (len(points_lidar), digest, K.tobytes(), tuple(image_size))
-        with self._lock:
-            drawn = list(self._views.get(key, ()))
-        best = None
-        for xyz_drawn, view in drawn:
-            motion = _rigid_motion(xyz_drawn, xyz)  # drawn points → these
-            if motion is not None:
-                T_drawn = T_cam_lidar @ motion
-                turn = view.turn_px(T_drawn[:3, :3], K)
-                if turn <= self.config.redraw_px and (best is None or turn < best[0]):
-                    best = (turn, view, T_drawn)
-        if best is not None:
-            return best[1], best[2]
+        keep = self.config.redraw_px > 0
+        if keep:
+            xyz = np.asarray(points_lidar[:, :3], np.float64)
+            key = (len(points_lidar), _intensity_digest(points_lidar), K.tobytes(), tuple(image_size))
+            with self._lock:
+                drawn = list(self._views.get(key, ()))
+            best = None
+            for xyz_drawn, view in drawn:
+                motion = _rigid_motion(xyz_drawn, xyz)  # drawn points → these
+                if motion is not None:
+                    T_drawn = T_cam_lidar @ motion
+                    turn = view.turn_px(T_drawn[:3, :3], K)
+                    if turn <= self.config.redraw_px and (best is None or turn < best[0]):
+                        best = (turn, view, T_drawn)
+            if best is not None:
+                return best[1], best[2]
         features = self.scan_features(points_lidar)
         view = VirtualView.draw(points_lidar, T_cam_lidar[:3, :3], K, image_size, self.config, features)
-        with self._lock:
-            self._views.setdefault(key, []).append((xyz, view))
-            self._views.move_to_end(key)
-            if len(self._views[key]) > VIEWS_PER_SCAN:
-                self._views[key].pop(0)
-            if len(self._views) > self._cache_size:
-                self._views.popitem(last=False)
+        if keep:
+            with self._lock:
+                self._views.setdefault(key, []).append((xyz, view))
+                self._views.move_to_end(key)
+                if len(self._views[key]) > VIEWS_PER_SCAN:
+                    self._views[key].pop(0)
+                if len(self._views) > self._cache_size:
+                    self._views.popitem(last=False)
         return view, T_cam_lidar
 
     def with_config(self, config: EdgeMatcherConfig) -> EdgeMatcher:
