@@ -211,3 +211,24 @@ def test_realism_table_shows_each_rows_ring_stripes(monkeypatch):
     assert "| dataset | size | correspondences | px | mrad median | ratio | ring stripes |" in text
     assert "| kitti-raw-0928 | 1242x375 | 10 | 1.50 / 2.00 / 4.00 | 1.50 |  | 1.34 |" in text
     assert "| synth-urban (effects) | 1242x375 | 10 | 1.50 / 2.00 / 4.00 | 1.50 | 1.00 | – |" in text
+
+
+def test_the_ideal_lidar_world_starts_from_the_draws_of_the_world_it_changes(monkeypatch):
+    starts = {}
+    monkeypatch.setattr(bench_real, "one_run", lambda frames, T_start, *rest, **kw: {"T": T_start})
+    datasets = {d.name: d for d in bench_real.synthetic_datasets((5,))}  # lazy: nothing is rendered
+    for name in ("synth-urban-offset0", "synth-urban-ideal-lidar", "synth-urban-offset"):
+        dataset = bench_real.Dataset(name, lambda run: ([], _T(), {}), 10, datasets[name].draws_as)
+        starts[name] = bench_real.run_all(dataset, "10", 3, {"packaged": None}, False)["packaged"]["T"]
+    np.testing.assert_array_equal(starts["synth-urban-offset0"], starts["synth-urban-ideal-lidar"])
+    assert not np.array_equal(starts["synth-urban-offset0"], starts["synth-urban-offset"])
+    assert datasets["synth-vineyard-ideal-lidar"].draws_as == "synth-vineyard-offset0"
+
+
+def test_the_ideal_lidar_world_changes_only_the_lasers_angle_errors():
+    from calib.synth.synth_config import load_synth_config
+
+    paired = load_synth_config("urban", **bench_real.SYNTH_VARIANTS["offset0"])
+    ideal = load_synth_config("urban", **bench_real.SYNTH_VARIANTS["ideal-lidar"])
+    assert paired.lidar.laser_angle_std_deg > 0 and ideal.lidar.laser_angle_std_deg == 0
+    assert ideal.model_copy(update={"lidar": paired.lidar}) == paired
