@@ -12,7 +12,7 @@ pixel scale (1242x375, f = 721.5) and vineyard at the BLT ZED's half resolution 
 10-frame sequences of unseen seeds, the world's own wind, once with the camera exposing with the
 LiDAR (``camera_offset_s = 0``) and once with the world's default offset (5 ms urban, 20 ms vineyard);
 and ``ideal-lidar``: as the first but with a LiDAR without per-laser angle errors, from the same
-starts (the floor those errors put under any camera-LiDAR method, see ``SYNTH_VARIANTS``).
+starts (how much of the error those lasers cause, see ``SYNTH_VARIANTS``).
 
 Each run draws a start ``T_ref · Δ`` with ``Δ`` of random axis and direction and its size uniform in
 the ball of the level (``--shell``: exactly the level's size), from a generator seeded by the crc32
@@ -123,8 +123,7 @@ the LiDAR; with the world's default offset (5 ms urban, 20 ms vineyard); and ``i
 laser's angle error (``lidar.laser_angle_std_deg``, 0.12° as on a real HDL-64) is zero-mean over
 the 64 lasers, not over those a camera sees: the extrinsic the camera's view supports is not the
 nominal truth (urban seeds 301–304 from 10° / 50 cm: the packaged config ends 1.2–2.9 cm /
-0.07–0.18° from it, 0.3–1.3 cm / 0.01–0.06° on ``ideal-lidar``; README), which an extrinsic alone
-cannot undo."""
+0.07–0.18° from it, 0.3–1.3 cm / 0.01–0.06° on ``ideal-lidar``; README)."""
 SYNTH_PAIRED = {"ideal-lidar": "offset0"}
 """Variants whose runs start from the draws of another (the world they change one thing of)."""
 RESULTS = Path(__file__).parent / "results"
