@@ -79,6 +79,9 @@ VARIANTS = {
     "global-pyramid-fullres-iwfine": "global+pyramid+dense at full resolution, its intensity edges 0.25",
     "global-pyramid-fullres-iwfine360": "global+pyramid+dense at full resolution, 360 px on: intensity 0.25",
     "global-pyramid-fullres-f540-iwfine360": "global+pyramid+dense at 540 px, 360 px on: intensity 0.25",
+    "global-flowcoarse-pyramid-fullres-iwfine360": (
+        "global+flow coarse+pyramid+dense at full resolution, 360 px on: intensity 0.25"
+    ),  # the packaged config with flow_coarse_passes
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),

@@ -213,6 +213,15 @@ def test_realism_table_shows_each_rows_ring_stripes(monkeypatch):
     assert "| synth-urban (effects) | 1242x375 | 10 | 1.50 / 2.00 / 4.00 | 1.50 | 1.00 | – |" in text
 
 
+def test_the_full_resolution_flow_coarse_variant_is_the_packaged_config_with_flow_passes():
+    from calib.refine.passes import load_calibrate_config
+
+    name = "global-flowcoarse-pyramid-fullres-iwfine360"
+    config = bench_real.variant_configs([name])[name]
+    assert config.flow_coarse_passes == bench_real.FLOW_COARSE_PASSES > 0
+    assert config.model_copy(update={"flow_coarse_passes": 0}) == load_calibrate_config()
+
+
 def test_the_ideal_lidar_world_starts_from_the_draws_of_the_world_it_changes(monkeypatch):
     starts = {}
     monkeypatch.setattr(bench_real, "one_run", lambda frames, T_start, *rest, **kw: {"T": T_start})
