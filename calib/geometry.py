@@ -24,6 +24,7 @@ from kornia.geometry.liegroup import Se3, So3
 __all__ = [
     "CalibrationError",
     "calibration_error",
+    "kabsch",
     "perturb",
     "pose_error",
     "random_perturbation",
@@ -206,6 +207,14 @@ def random_perturbation(
     T[..., :3, 3] = translation
     T[..., 3, 3] = 1.0
     return T
+
+
+def kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``R (3, 3)`` minimising ``Σ ‖target_k − R source_k‖²`` over rotations (Kabsch): ``source,
+    target (K, 3)``, already centred where a translation is fitted too."""
+    U, _, Vt = np.linalg.svd(source.T @ target)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    return Vt.T @ D @ U.T
 
 
 def perturb(

@@ -25,6 +25,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from calib.errors import NumericalError
+from calib.geometry import kabsch
 from calib.observability import WeakDirection, weak_directions
 
 __all__ = [
@@ -101,13 +102,6 @@ class HandEyeResult:
         }
 
 
-def _kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """``R`` minimising ``Σ ‖target_k − R source_k‖²``; ``source, target (K, 3)``."""
-    U, _, Vt = np.linalg.svd(source.T @ target)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return Vt.T @ D @ U.T
-
-
 def _closed_form(
     A: np.ndarray, B: np.ndarray, rotating: np.ndarray, metric: bool, notes: list[str]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -126,7 +120,7 @@ def _closed_form(
         moving = np.linalg.norm(B[:, :3, 3], axis=1) > 1e-6
         source = np.vstack([omega_B, scale * unit(B[moving, :3, 3])])
         target = np.vstack([omega_A, scale * unit(A[moving, :3, 3])])
-    R_X = _kabsch(source, target)
+    R_X = kabsch(source, target)
     K = len(A)
     # (R_A − I) t_X + s_k â_k = R_X t_B, stacked: unknowns t_X (3) and s_k (K) unless metric
     M = np.zeros((3 * K, 3 + (0 if metric else K)))

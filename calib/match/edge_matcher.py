@@ -28,6 +28,7 @@ from scipy import ndimage
 
 from calib.data.types import Frame
 from calib.features import RingProfile, level_laser_gains, ring_spacing_profile
+from calib.geometry import kabsch
 from calib.match.correspondences import Correspondences, WorkingView, working_view
 from calib.projection import ProjectedScan, Visibility, project_scan
 
@@ -647,9 +648,7 @@ def _rigid_motion(before: np.ndarray, after: np.ndarray) -> np.ndarray | None:
     if not np.array_equal(before, after):
         few_a, few_b = before[:: max(1, len(before) // 1000)], after[:: max(1, len(after) // 1000)]
         mean_a, mean_b = few_a.mean(0), few_b.mean(0)
-        U, _, Vt = np.linalg.svd((few_a - mean_a).T @ (few_b - mean_b))
-        flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-        motion[:3, :3] = Vt.T @ flip @ U.T
+        motion[:3, :3] = kabsch(few_a - mean_a, few_b - mean_b)
         motion[:3, 3] = mean_b - motion[:3, :3] @ mean_a
         if np.abs(before @ motion[:3, :3].T + motion[:3, 3] - after).max() > RIGID_TOL_M:
             return None

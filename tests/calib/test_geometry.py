@@ -150,3 +150,18 @@ def test_twist_steps_step_each_axis_both_ways():
         expected[2 * axis, axis], expected[2 * axis + 1, axis] = size, -size
     assert torch.equal(steps, expected)
     assert torch.count_nonzero(steps[6:, :3]) == 0 and torch.count_nonzero(steps[:6, 3:]) == 0
+
+
+def test_kabsch_recovers_a_known_rotation_and_never_a_reflection():
+    from scipy.spatial.transform import Rotation
+
+    from calib.geometry import kabsch
+
+    rng = np.random.default_rng(4)
+    R = Rotation.from_rotvec([0.3, -0.2, 1.1]).as_matrix()
+    source = rng.normal(size=(50, 3))
+    np.testing.assert_allclose(kabsch(source, source @ R.T), R, atol=1e-12)
+    planar = np.column_stack([rng.normal(size=(20, 2)), np.zeros(20)])  # a mirror fits as well
+    fitted = kabsch(planar, planar @ R.T)
+    np.testing.assert_allclose(np.linalg.det(fitted), 1.0, atol=1e-12)
+    np.testing.assert_allclose(planar @ fitted.T, planar @ R.T, atol=1e-12)
