@@ -70,16 +70,39 @@ class FlowModule(L.LightningModule):
         self._val: list[np.ndarray] = []
 
     def load_weights(self, path: Path) -> None:
-        """The network's weights from a checkpoint of the same architecture (fine-tuning).
+        """The network's weights from a checkpoint of the same architecture, or from an exported
+        flow matcher (``.onnx``, e.g. the shipped one: its initialisers carry the parameter names),
+        for fine-tuning.
 
         Raises:
-            DataError: not readable, or another network's weights."""
+            DataError: not readable, another network's weights, or an ONNX model drawn with
+                another LiDAR encoding or working resolution than this run's data."""
+        path = Path(path)
         try:
-            state = torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
-            self.load_state_dict(state)
-        except (OSError, KeyError, RuntimeError, pickle.UnpicklingError) as error:
+            if path.suffix == ".onnx":
+                self.net.load_state_dict(self._onnx_weights(path))
+            else:
+                state = torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
+                self.load_state_dict(state)
+        except (OSError, KeyError, RuntimeError, ValueError, pickle.UnpicklingError) as error:
             first = str(error).splitlines()[0] if str(error) else type(error).__name__
             raise DataError(path, f"holds no weights of this flow network ({first})") from None
+
+    def _onnx_weights(self, path: Path) -> dict[str, torch.Tensor]:
+        import onnx
+        from onnx import numpy_helper
+
+        from supportnet.nets.contract import METADATA_KEY, Contract
+
+        model = onnx.load(str(path))
+        meta = {p.key: p.value for p in model.metadata_props}
+        if METADATA_KEY not in meta:
+            raise ValueError("no supportnet contract in its metadata")
+        theirs = Contract.from_json(meta[METADATA_KEY]).extra
+        ours = Contract.from_json(self.contract.to_json()).extra  # as JSON holds it
+        if theirs != ours:
+            raise ValueError(f"drawn with {theirs}, this run's data with {ours}")
+        return {i.name: torch.from_numpy(numpy_helper.to_array(i).copy()) for i in model.graph.initializer}
 
     def forward(self, image: torch.Tensor, lidar: torch.Tensor, all_iterations: bool = False):
         """``image (B, 3, H, W)`` RGB in [0, 1] (normalised per the contract), ``lidar (B, 5, H, W)``."""

@@ -135,7 +135,9 @@ class FlowTrainConfig(_Group):
     out: Path = Field(Path("runs/flow"), description="checkpoints, logs and curves go here")
     data: FlowDataConfig
     init: Path | None = Field(
-        None, description="start from these weights: a checkpoint of the same network (fine-tuning)"
+        None,
+        description="start from these weights (fine-tuning): a checkpoint of the same network, or an "
+        "exported flow matcher such as the shipped supportnet/assets/flow_matcher.onnx",
     )
     model: FlowConfig = FlowConfig()
     augment: FlowAugmentConfig = FlowAugmentConfig()

@@ -12,7 +12,7 @@ from calib.match.edge_matcher import EdgeMatcherConfig
 from calib.projection import project_scan
 from export.onnx_export import export_onnx
 from supportnet.nets.flow_net import image_orientation
-from supportnet.runtime.flow_matcher import FlowMatcher, relative_intensity
+from supportnet.runtime.flow_matcher import SHIPPED_FLOW_MODEL, FlowMatcher, relative_intensity
 from supportnet.runtime.matcher_factory import build_matcher
 from train.fit import run_train_flow
 from train.flow_data import (
@@ -259,3 +259,30 @@ def test_fine_tuning_starts_from_the_weights_it_is_given(tmp_path):
     (tmp_path / "text.ckpt").write_text("not a checkpoint")
     with pytest.raises(DataError, match="holds no weights of this flow network"):
         fresh.load_weights(tmp_path / "text.ckpt")
+
+
+def test_fine_tuning_starts_from_the_shipped_onnx_matcher(tmp_path):
+    import onnxruntime as ort
+
+    shipped = json.loads(SHIPPED_FLOW_MODEL.with_suffix(".json").read_text())["contract"]["extra"]
+    config = load_train_config(None, [], FlowTrainConfig)
+    module = FlowModule(
+        config.model.model_dump(), {"lr": 1e-3}, {}, 0.8, shipped["near_m"], shipped["working_focal_px"]
+    ).eval()
+    module.load_weights(SHIPPED_FLOW_MODEL)
+    # the torch network with the loaded weights computes what the shipped ONNX file computes
+    generator = torch.Generator().manual_seed(0)
+    image = torch.rand(1, 3, 96, 200, generator=generator)
+    lidar = (torch.rand(1, 5, 96, 200, generator=generator) > 0.9).float()
+    with torch.no_grad():
+        expected = module(image, lidar).numpy()
+    session = ort.InferenceSession(str(SHIPPED_FLOW_MODEL), providers=["CPUExecutionProvider"])
+    normalised = ((image - module.mean) / module.std).numpy()
+    (flow,) = session.run(None, {"image": normalised, "lidar": lidar.numpy()})
+    assert np.abs(flow - expected).max() < 1e-3
+    with pytest.raises(DataError, match="drawn with"):  # another LiDAR encoding than the run's data
+        FlowModule(config.model.model_dump(), {"lr": 1e-3}, {}, 0.8, 3.0, 360.0).load_weights(
+            SHIPPED_FLOW_MODEL
+        )
+    with pytest.raises(DataError, match="holds no weights of this flow network"):
+        _module().load_weights(SHIPPED_FLOW_MODEL)  # another width
