@@ -54,6 +54,15 @@ def test_contract_preprocess_known_answer_and_round_trip():
         contract.preprocess(np.zeros((4, 4), np.uint8))
 
 
+def test_contract_preprocess_reads_every_uint8_level_as_its_float_image():
+    contract = Contract(mean=(0.485, 0.456, 0.406), std=(0.229, 0.224, 0.225))
+    levels = np.arange(256, dtype=np.uint8)
+    image = np.stack([levels, levels[::-1], np.roll(levels, 7)], axis=-1).reshape(2, 128, 3)
+    batch = np.stack([image, image[::-1]])  # a batch of two
+    expected = contract.preprocess(batch.astype(np.float32) / 255.0)
+    assert np.allclose(contract.preprocess(batch), expected, atol=1e-6)
+
+
 def test_scores_known_answers():
     rng = np.random.default_rng(0)
     x = rng.random((20, 30))
