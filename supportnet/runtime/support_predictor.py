@@ -43,7 +43,11 @@ class SupportPredictor:
             ``(B, H, W)`` float32 in [0, 1].
         """
         (logits,) = self.session.run(None, {self.input_name: self.contract.preprocess(images)})
-        return (1.0 / (1.0 + np.exp(-logits[:, 0]))).astype(np.float32)
+        support = logits[:, 0]  # the sigmoid in place, on the session's float32 output
+        np.negative(support, out=support)
+        np.exp(support, out=support)
+        support += 1.0
+        return np.reciprocal(support, out=support)
 
 
 def open_model(path: Path, output: str, threads: int = 0) -> tuple[ort.InferenceSession, Contract]:
