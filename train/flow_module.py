@@ -94,7 +94,12 @@ class FlowModule(L.LightningModule):
 
         from supportnet.nets.contract import METADATA_KEY, Contract
 
-        model = onnx.load(str(path))
+        try:
+            model = onnx.load(str(path))
+        except OSError:
+            raise
+        except Exception as error:  # protobuf's own error types for a file that is not ONNX
+            raise ValueError(f"not an ONNX model ({type(error).__name__})") from None
         meta = {p.key: p.value for p in model.metadata_props}
         if METADATA_KEY not in meta:
             raise ValueError("no supportnet contract in its metadata")

@@ -286,3 +286,6 @@ def test_fine_tuning_starts_from_the_shipped_onnx_matcher(tmp_path):
         )
     with pytest.raises(DataError, match="holds no weights of this flow network"):
         _module().load_weights(SHIPPED_FLOW_MODEL)  # another width
+    (tmp_path / "text.onnx").write_text("not a model")
+    with pytest.raises(DataError, match="not an ONNX model"):
+        _module().load_weights(tmp_path / "text.onnx")
