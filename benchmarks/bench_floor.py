@@ -69,7 +69,11 @@ def one_row(world: str, overrides: dict, true_motion: bool, seeds: list[int], sa
     """The passes from the truth on each seed's sequence, ``samplings`` times each."""
     config = load_calibrate_config()
     config = config.model_copy(
-        update={"coarse": config.coarse.model_copy(update={"enabled": False}), "pyramid_focals_px": ()}
+        update={
+            "coarse": config.coarse.model_copy(update={"enabled": False}),
+            "flow_coarse_passes": 0,
+            "pyramid_focals_px": (),
+        }
     )
     runs = []
     for seed in seeds:

@@ -70,24 +70,33 @@ VARIANTS = {
     "global": "global+dense",
     "contour": "contour+dense",
     "global-contour": "global+contour+dense",
-    "global-pyramid": "global+pyramid+dense",  # the packaged calibrate.yaml
+    "global-pyramid": "global+pyramid+dense",  # the packaged calibrate.yaml until 2026-11-26
     "flow-global": "flow+global+dense",  # the learned matcher (its own pyramid-free passes)
     "global-flowcoarse-pyramid": "global+flow coarse+pyramid+dense",  # flow passes as one more start
     "global-pyramid-fullres": "global+pyramid+dense at full resolution",  # finest passes at 721.5 px
     "global-pyramid-iw25": "global+pyramid+dense, intensity edges 0.25",  # edge.intensity_weight 0.5 -> 0.25
     "global-pyramid-fullres-iw25": "global+pyramid+dense at full resolution, intensity edges 0.25",
     "global-pyramid-fullres-iwfine": "global+pyramid+dense at full resolution, its intensity edges 0.25",
-    "global-pyramid-fullres-iwfine360": "global+pyramid+dense at full resolution, 360 px on: intensity 0.25",
+    "global-pyramid-fullres-iwfine360": (
+        "global+pyramid+dense at full resolution, 360 px on: intensity 0.25"
+    ),  # the packaged calibrate.yaml from 2026-11-26 to 2026-11-27
     "global-pyramid-fullres-f540-iwfine360": "global+pyramid+dense at 540 px, 360 px on: intensity 0.25",
     "global-flowcoarse-pyramid-fullres-iwfine360": (
         "global+flow coarse+pyramid+dense at full resolution, 360 px on: intensity 0.25"
     ),  # the packaged config with flow_coarse_passes
+    "global-flowcoarse3-pyramid-fullres-iwfine360": (
+        "global+flow coarse on 3 frames+pyramid+dense at full resolution, 360 px on: intensity 0.25"
+    ),  # the packaged calibrate.yaml (PACKAGED)
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
 }
+PACKAGED = "global-flowcoarse3-pyramid-fullres-iwfine360"
+"""The variant that is the packaged ``calibrate.yaml`` (the default of ``--variants``)."""
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
+FLOW_COARSE_FRAMES = 3
+"""The ``flowcoarse3`` variants' frames for those passes (``flow_coarse_frames``)."""
 PYRAMID_FOCALS_PX = (90.0, 180.0)
 """The ``pyramid`` variants' coarser working focal lengths (``pyramid_focals_px``)."""
 FULLRES_FOCAL_PX = 721.5
@@ -167,6 +176,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
             edge = edge.model_copy(update={"intensity_weight": LOW_INTENSITY_WEIGHT})
         if "ss4" in stages:
             edge = edge.model_copy(update=SUPERSAMPLED)
+        flow_coarse = "flowcoarse" in stages or "flowcoarse3" in stages
         fine_weight = LOW_INTENSITY_WEIGHT if "iwfine" in stages or "iwfine360" in stages else None
         fine_from = edge.working_focal_px if "iwfine360" in stages else None
         return base.model_copy(
@@ -182,7 +192,8 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "time_offset": base.time_offset.model_copy(update={"from_px": timed_from}),
                 "edge": edge,
                 "matcher": "flow" if "flow" in stages else "edge",
-                "flow_coarse_passes": FLOW_COARSE_PASSES if "flowcoarse" in stages else 0,
+                "flow_coarse_passes": FLOW_COARSE_PASSES if flow_coarse else 0,
+                "flow_coarse_frames": FLOW_COARSE_FRAMES if "flowcoarse3" in stages else None,
             }
         )
 
@@ -539,10 +550,11 @@ def main() -> None:
     parser.add_argument("--fixtures", default=None, help="comma-separated dataset names (default: all)")
     parser.add_argument(
         "--variants",
-        default="global,global-pyramid",
-        help="dense; global (global coarse + dense); global-pyramid (the packaged config: global "
-        "coarse, the matcher pyramid, dense); contour (contour refinement + dense); "
-        "global-contour (all three)",
+        default=PACKAGED,
+        help=f"comma-separated, of: {', '.join(VARIANTS)} (default: {PACKAGED}, the packaged "
+        "config); each name's parts switch a stage on (global: the global coarse stage; flowcoarse, "
+        "flowcoarse3: the learned matcher's passes as a start, on every frame or three; pyramid; "
+        "fullres: the finest passes at full resolution; contour; ...)",
     )
     parser.add_argument(
         "--merge", action="store_true", help="keep the other datasets of an earlier bench_real.json"

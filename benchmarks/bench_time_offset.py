@@ -43,10 +43,10 @@ from rich.console import Console
 
 from calib.geometry import calibration_error
 from calib.motion import motions_from_poses
-from calib.pipeline import Calibrator
 from calib.refine.passes import load_calibrate_config
 from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
+from supportnet import Calibrator  # builds the packaged config's learned matcher too
 
 STRETCHES = {"urban": range(25, 70), "vineyard": range(55, 105)}
 SEED = 301

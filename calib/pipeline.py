@@ -245,11 +245,18 @@ class Calibrator:
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
         if self.config.flow_coarse_passes:  # the learned matcher's passes from the initial extrinsic
             flow_config = self.config.model_copy(update={"passes": self.config.flow_coarse_passes})
+            some = select_frames(len(frames), self.config.flow_coarse_frames or len(frames))
             flow = refine_passes(
-                frames, T_init, self.coarse_matcher, self.support, flow_config, rng, timing=held
+                [frames[i] for i in some],
+                T_init,
+                self.coarse_matcher,
+                self.support,
+                flow_config,
+                rng,
+                timing=None if held is None else held.of_frames(some),
             )
             coarse_starts["flow"] = flow.T_cam_lidar
-            coarse.append(_passes_entry("flow", flow.passes))
+            coarse.append(_passes_entry("flow", flow.passes, frames=len(some)))
         T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
         pyramid = self._pyramid_focals(frames)
         if pyramid and alternatives:

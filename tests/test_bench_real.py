@@ -178,24 +178,28 @@ def test_parts_join_run_by_run_and_are_summarised_again():
 
 
 def test_the_packaged_variant_is_the_packaged_config():
-    """The README's rows of ``global-pyramid-fullres-iwfine360`` measure what ``calibrate`` runs;
-    ``global-pyramid`` stays the default before it (finest passes at 360 px)."""
+    """The README's rows of ``PACKAGED`` measure what ``calibrate`` runs (and what
+    ``bench_real.py`` runs by default); ``global-pyramid`` stays the default before full resolution
+    (finest passes at 360 px), ``global-pyramid-fullres-iwfine360`` the one before the flow start."""
     from calib.refine.passes import load_calibrate_config
 
-    configs = bench_real.variant_configs(["global-pyramid-fullres-iwfine360", "global-pyramid"])
-    assert configs["global-pyramid-fullres-iwfine360"] == load_calibrate_config()
+    names = [bench_real.PACKAGED, "global-pyramid-fullres-iwfine360", "global-pyramid"]
+    configs = bench_real.variant_configs(names)
+    assert configs[bench_real.PACKAGED] == load_calibrate_config()
+    before = configs["global-pyramid-fullres-iwfine360"]
+    assert before == load_calibrate_config().model_copy(
+        update={"flow_coarse_passes": 0, "flow_coarse_frames": None}
+    )
     old = configs["global-pyramid"]
     assert old.finest_focal_px is None and old.pyramid_focals_px == (90.0, 180.0)
     assert old.fine_intensity_weight is None and old.time_offset.from_px is None
 
 
-def test_the_540_px_variant_differs_from_the_packaged_config_only_in_its_finest_level():
-    from calib.refine.passes import load_calibrate_config
-
-    variant = bench_real.variant_configs(["global-pyramid-fullres-f540-iwfine360"])
-    config = variant["global-pyramid-fullres-f540-iwfine360"]
+def test_the_540_px_variant_differs_from_the_full_resolution_one_only_in_its_finest_level():
+    names = ["global-pyramid-fullres-f540-iwfine360", "global-pyramid-fullres-iwfine360"]
+    config, full = (bench_real.variant_configs(names)[name] for name in names)
     assert config.finest_focal_px == bench_real.MIDRES_FOCAL_PX
-    assert config.model_copy(update={"finest_focal_px": 721.5}) == load_calibrate_config()
+    assert config.model_copy(update={"finest_focal_px": 721.5}) == full
 
 
 def test_realism_table_shows_each_rows_ring_stripes(monkeypatch):
@@ -213,13 +217,18 @@ def test_realism_table_shows_each_rows_ring_stripes(monkeypatch):
     assert "| synth-urban (effects) | 1242x375 | 10 | 1.50 / 2.00 / 4.00 | 1.50 | 1.00 | – |" in text
 
 
-def test_the_full_resolution_flow_coarse_variant_is_the_packaged_config_with_flow_passes():
+def test_the_flow_coarse_variants_are_the_packaged_config_on_every_frame_or_three():
     from calib.refine.passes import load_calibrate_config
 
     name = "global-flowcoarse-pyramid-fullres-iwfine360"
     config = bench_real.variant_configs([name])[name]
     assert config.flow_coarse_passes == bench_real.FLOW_COARSE_PASSES > 0
-    assert config.model_copy(update={"flow_coarse_passes": 0}) == load_calibrate_config()
+    packaged = config.model_copy(update={"flow_coarse_frames": bench_real.FLOW_COARSE_FRAMES})
+    assert packaged == load_calibrate_config()
+    three_frames = name.replace("flowcoarse", "flowcoarse3")
+    three = bench_real.variant_configs([three_frames])[three_frames]
+    assert three.flow_coarse_frames == bench_real.FLOW_COARSE_FRAMES
+    assert three.model_copy(update={"flow_coarse_frames": None}) == config
 
 
 def test_the_ideal_lidar_world_starts_from_the_draws_of_the_world_it_changes(monkeypatch):

@@ -198,10 +198,11 @@ class _Recording:
     name = "recording"
 
     def __init__(self) -> None:
-        self.inner, self.asked = EdgeMatcher(FAST.edge), []
+        self.inner, self.asked, self.frames = EdgeMatcher(FAST.edge), [], []
 
     def match(self, frame, T_cam_lidar):
         self.asked.append(np.array(T_cam_lidar))
+        self.frames.append(frame)
         return self.inner.match(frame, T_cam_lidar)
 
 
@@ -227,6 +228,28 @@ def test_flow_coarse_passes_add_a_start_from_the_coarse_matcher(frames):
         "flow",
     }
     assert result.error.translation_cm < 2.5 and result.error.rotation_deg < 0.4
+
+
+def test_flow_coarse_frames_run_those_passes_on_a_subset(frames):
+    """``flow_coarse_frames`` gives the coarse matcher's passes that many frames, spread evenly
+    (first and last); the probe still weighs their answer on every frame."""
+    config = FAST.model_copy(
+        update={
+            "flow_coarse_passes": 1,
+            "flow_coarse_frames": 2,
+            "pyramid_focals_px": (),
+            "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
+        }
+    )
+    T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(2))
+    coarse = _Recording()
+    result = Calibrator(config=config, coarse_matcher=coarse).calibrate(frames, T_init)
+    picked = [frames[i] for i in result.frame_indices]
+    assert len(picked) > 2
+    assert {id(f) for f in coarse.frames} == {id(picked[0]), id(picked[-1])}
+    flow = next(c for c in result.coarse if c["stage"] == "flow")
+    assert flow["frames"] == 2
+    assert "flow" in next(c for c in result.coarse if c["stage"] == "choice")["alignment_after_first_pass_px"]
 
 
 def test_a_map_support_source_is_used_and_checked(frames):

@@ -141,7 +141,12 @@ def test_known_motions_must_cover_every_used_frame():
     from calib.refine.passes import load_calibrate_config
 
     base = load_calibrate_config()
-    config = base.model_copy(update={"time_offset": base.time_offset.model_copy(update={"mode": "estimate"})})
+    config = base.model_copy(
+        update={
+            "time_offset": base.time_offset.model_copy(update={"mode": "estimate"}),
+            "flow_coarse_passes": 0,  # calib's Calibrator has no learned matcher
+        }
+    )
     frames = [_frame(k) for k in range(3)]
     with pytest.raises(DataError, match=r"no motion for the frames at positions \[1, 2\]"):
         Calibrator(config=config).calibrate(frames, T_TRUE, motions={0: ScanMotion.still()})
