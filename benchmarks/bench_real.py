@@ -83,7 +83,7 @@ VARIANTS = {
     "global-pyramid-fullres-f540-iwfine360": "global+pyramid+dense at 540 px, 360 px on: intensity 0.25",
     "global-flowcoarse-pyramid-fullres-iwfine360": (
         "global+flow coarse+pyramid+dense at full resolution, 360 px on: intensity 0.25"
-    ),  # the packaged config with flow_coarse_passes
+    ),  # the packaged config's flow passes on every frame
     "global-flowcoarse3-pyramid-fullres-iwfine360": (
         "global+flow coarse on 3 frames+pyramid+dense at full resolution, 360 px on: intensity 0.25"
     ),  # the packaged calibrate.yaml (PACKAGED)

@@ -111,6 +111,19 @@ def test_delta_t_restarts_are_probed_once_settled_and_kept_out_where_no_better()
     assert held.restarts_s == ()  # a held δt has nothing to restart
 
 
+def test_a_timing_of_some_frames_moves_those_frames_as_the_whole_one_does():
+    """``ScanTiming.of_frames``: the subset keeps its frames' motions and deskewed points in
+    order, and every setting; the frames it moves land where the whole timing moves them."""
+    frames, motions = _timed_frames()
+    timing = ScanTiming.of(frames, motions, 0.01, estimate=True, restarts_s=(-0.025, 0.025))
+    some = timing.of_frames([0, 2])
+    assert some.motions == [timing.motions[0], timing.motions[2]]
+    assert replace(some, motions=timing.motions, stamp=timing.stamp) == timing
+    moved = some.frames_at([frames[0], frames[2]], 0.02)
+    whole = timing.frames_at(frames, 0.02)
+    assert np.array_equal(moved[1].points, whole[2].points)
+
+
 def test_without_the_time_model_the_same_data_biases_the_extrinsic():
     frames, motions = _timed_frames()
     result = _run(frames, motions, None)
