@@ -87,6 +87,10 @@ VARIANTS = {
     "global-flowcoarse3-pyramid-fullres-iwfine360": (
         "global+flow coarse on 3 frames+pyramid+dense at full resolution, 360 px on: intensity 0.25"
     ),  # the packaged calibrate.yaml (PACKAGED)
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25"
+    ),
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -97,6 +101,8 @@ FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
 FLOW_COARSE_FRAMES = 3
 """The ``flowcoarse3`` variants' frames for those passes (``flow_coarse_frames``)."""
+PROBE_FRAMES = 4
+"""The ``probe4`` variants' frames for the probe's pass (``probe_frames``)."""
 PYRAMID_FOCALS_PX = (90.0, 180.0)
 """The ``pyramid`` variants' coarser working focal lengths (``pyramid_focals_px``)."""
 FULLRES_FOCAL_PX = 721.5
@@ -194,6 +200,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "matcher": "flow" if "flow" in stages else "edge",
                 "flow_coarse_passes": FLOW_COARSE_PASSES if flow_coarse else 0,
                 "flow_coarse_frames": FLOW_COARSE_FRAMES if "flowcoarse3" in stages else None,
+                "probe_frames": PROBE_FRAMES if "probe4" in stages else None,
             }
         )
 

@@ -267,7 +267,17 @@ class Calibrator:
             coarser = probe is not None and probe < NEAR_FINEST * self._finest_focal(frames)
             matcher, config = self._level(probe if coarser else None)
             one_pass = config.model_copy(update={"passes": 1})
-            probed = refine_passes(frames, T_start, matcher, self.support, one_pass, rng, alternatives, held)
+            some = select_frames(len(frames), self.config.probe_frames or len(frames))
+            probed = refine_passes(
+                [frames[i] for i in some],
+                T_start,
+                matcher,
+                self.support,
+                one_pass,
+                rng,
+                alternatives,
+                None if held is None else held.of_frames(some),
+            )
             T_start, alternatives = probed.T_cam_lidar, []
         restarted = None  # the passes that ran the δt restarts, where a pyramid level did
         timed_from = self.config.time_offset.from_px

@@ -285,7 +285,11 @@ def lidar_edges(
     # midway between its last return and the sky, not at the fill radius
     sky = len(scan.depth)
     ids[(dist > fill_px) & sees] = sky
-    first, second = _nearest_seeds(ids)
+    # every seed, return or sky, lies in one box; beyond the fill radius from it (and the
+    # gradients' reach) the LiDAR does not look and the field is zero, so the Voronoi fill and
+    # the gradients run on the box alone (KITTI: the rows above its top ring, 40 % of the image)
+    rows, cols = _seed_box(ids >= 0, int(np.ceil(fill_px.max())) + 1 + GRADIENT_REACH_PX + 1)
+    first, second = _nearest_seeds(ids[rows, cols])
     log_depth = np.log(np.append(scan.depth, config.far_depth_m))
     intensity = np.append(scan.intensity / max(float(np.percentile(scan.intensity, 99)), 1e-6), 0.0)
     inverse_depth = np.append(1.0 / scan.depth, 0.0)
@@ -299,7 +303,30 @@ def lidar_edges(
     field = _orientation_field(gx, gy, np.clip((m - start) / (full - start), 0, 1))
     gx, gy, m = _gradient(np.clip(intensity, 0, 1), 0.7)
     field += config.intensity_weight * _orientation_field(gx, gy, np.clip(m / config.intensity_edge_px, 0, 1))
-    return field * ((dist <= fill_px + 1) | sees), inverse_depth.astype(np.float32)
+    field *= (dist[rows, cols] <= fill_px[rows, cols] + 1) | sees[rows, cols]
+    whole = np.zeros((2, H, W), np.float32)
+    whole[:, rows, cols] = field
+    # outside the box each pixel takes the inverse depth of the box's nearest border pixel
+    # (the nearest seed's, where that is the one beside it): only the flow's depth model reads it
+    border = (rows.start, H - rows.stop, cols.start, W - cols.stop)
+    return whole, cv2.copyMakeBorder(inverse_depth.astype(np.float32), *border, cv2.BORDER_REPLICATE)
+
+
+GRADIENT_REACH_PX = 4
+"""How far from a pixel :func:`_gradient` reads: the blur's kernel (σ 0.7: 7 taps) and Sobel's."""
+
+
+def _seed_box(seeds: np.ndarray, margin: int) -> tuple[slice, slice]:
+    """Rows and columns of the smallest box holding every ``True`` of ``seeds (H, W)``, widened
+    by ``margin`` on each side (within the image); the whole image where there is none."""
+    H, W = seeds.shape
+    rows, cols = np.flatnonzero(seeds.any(1)), np.flatnonzero(seeds.any(0))
+    if len(rows) == 0:
+        return slice(0, H), slice(0, W)
+    return (
+        slice(max(rows[0] - margin, 0), min(rows[-1] + margin + 1, H)),
+        slice(max(cols[0] - margin, 0), min(cols[-1] + margin + 1, W)),
+    )
 
 
 def _splat(values: np.ndarray, uv: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
@@ -502,9 +529,10 @@ def _downsample(x: np.ndarray) -> np.ndarray:
 def _normalised_cost(
     lidar: np.ndarray, image: np.ndarray, radius: int, window: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(D, H, W)`` window-aggregated correlation ``⟨L(y), I(y + d)⟩`` for the ``D = (2r+1)²``
+    """``(D, H, W)`` window-summed correlation ``Σ_y ⟨L(y), I(y + d)⟩`` for the ``D = (2r+1)²``
     displacements ``d`` (row-major over ``(dv, du)`` from ``(−r, −r)``), divided by the RMS of the
-    image field in the displaced window. Without the division the peak leans toward displacements
+    image field in the displaced window (a sum, not the window's mean: a pixel's count of samples
+    is the same at every displacement, so :func:`_peak` divides by it once). Without the division the peak leans toward displacements
     whose window holds more image edges (Cauchy–Schwarz bounds the correlation by that energy, not
     by the match); with it, a field matched against itself peaks exactly at zero.
 
@@ -517,22 +545,20 @@ def _normalised_cost(
         int64, and that cost ``(H·W,)``.
     """
     C, H, W = lidar.shape
-    count = np.outer(_window_counts(H, window), _window_counts(W, window))
     energy = np.pad(_box((image**2).sum(0, keepdims=True), window)[0], radius)  # zero outside
     rms = np.sqrt(np.maximum(energy, 1e-12)) + 1e-3
     padded = np.pad(image, ((0, 0), (radius, radius), (radius, radius)))
     n = 2 * radius + 1
     out = np.empty((n * n, H, W), np.float32)
-    product = np.empty((H, W), np.float32)
+    product, term = np.empty((H, W), np.float32), np.empty((H, W), np.float32)
     best = np.zeros(H * W, np.int64)
     for k in range(n * n):
         dv, du = divmod(k, n)
         shifted = padded[:, dv : dv + H, du : du + W]
         np.multiply(lidar[0], shifted[0], out=product)
         for c in range(1, C):
-            product += lidar[c] * shifted[c]
-        summed = cv2.boxFilter(product, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
-        np.divide(summed, count, out=out[k])
+            product += np.multiply(lidar[c], shifted[c], out=term)
+        cv2.boxFilter(product, -1, (window, window), out[k], normalize=False, borderType=cv2.BORDER_CONSTANT)
         out[k] /= rms[dv : dv + H, du : du + W]
         if k == 0:
             peak = out[0].ravel().copy()
@@ -561,14 +587,15 @@ def _upsample_flow(flow: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 
 def _peak(
-    cost: np.ndarray, radius: int, best: np.ndarray, peak: np.ndarray
+    cost: np.ndarray, radius: int, best: np.ndarray, peak: np.ndarray, window: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Sub-pixel peak of a cost volume ``(D, H, W)`` around its largest entry per pixel, ``best``
-    ``(H·W,)`` of value ``peak`` (:func:`_normalised_cost`).
+    """Sub-pixel peak of a cost volume ``(D, H, W)`` of window sums around its largest entry per
+    pixel, ``best`` ``(H·W,)`` of value ``peak`` (:func:`_normalised_cost`).
 
     Returns:
         ``offset (2, H, W)`` as ``(du, dv)``, ``peak (H, W)``, and the curvatures across the peak
-        along u and v ``(H, W)`` (zero where the peak lies on the search border).
+        along u and v ``(H, W)`` (zero where the peak lies on the search border); the last three
+        of the window's mean.
     """
     n = 2 * radius + 1
     D, H, W = cost.shape
@@ -584,7 +611,9 @@ def _peak(
         sub = np.where(curvature > 0, (hi - lo) / (2 * np.maximum(curvature, 1e-12)), 0)
         offsets.append((b + np.clip(sub, -0.5, 0.5)).reshape(H, W))
         curvatures.append(curvature.reshape(H, W))
-    return np.stack(offsets).astype(np.float32), peak.reshape(H, W), curvatures[0], curvatures[1]
+    count = np.outer(_window_counts(H, window), _window_counts(W, window))
+    mean_peak, curv_u, curv_v = (x / count for x in (peak.reshape(H, W), *curvatures))
+    return np.stack(offsets).astype(np.float32), mean_peak, curv_u, curv_v
 
 
 def _depth_model_fit(
@@ -783,7 +812,7 @@ class EdgeMatcher:
                 flow = _upsample_flow(flow, L.shape[1:])
             radius = cfg.search_radius if level == cfg.levels - 1 else cfg.refine_radius
             cost, best, top = _normalised_cost(L, _warp(I, flow), radius, cfg.window)
-            offset, peak, curv_u, curv_v = _peak(cost, radius, best, top)
+            offset, peak, curv_u, curv_v = _peak(cost, radius, best, top, cfg.window)
             signal = _box(np.sqrt((L**2).sum(0, keepdims=True)), cfg.window)[0]
             confidence = _confidence(peak, curv_u, curv_v, signal, cfg.sharpness_scale)
             if level:

@@ -230,6 +230,12 @@ class CalibrateConfig(BaseModel):
         "level is full resolution (721.5 px on KITTI) a probe at 360 px costs a quarter as much and "
         "still tells a wrong start from the right one",
     )
+    probe_frames: int | None = Field(
+        None,
+        ge=1,
+        description="the probe's pass runs on this many of the frames, spread evenly (null: all); "
+        "the pyramid's levels go on from its choice on every frame",
+    )
     fine_intensity_weight: NonNegativeFloat | None = Field(
         None,
         description="`edge.intensity_weight` of the finest level's passes (null: the same), and of "
