@@ -86,16 +86,16 @@ VARIANTS = {
     ),  # the packaged config's flow passes on every frame
     "global-flowcoarse3-pyramid-fullres-iwfine360": (
         "global+flow coarse on 3 frames+pyramid+dense at full resolution, 360 px on: intensity 0.25"
-    ),  # the packaged calibrate.yaml (PACKAGED)
+    ),  # the packaged calibrate.yaml on 2026-11-27 (stop 47), the probe on every frame
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25"
-    ),
+    ),  # the packaged calibrate.yaml (PACKAGED)
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
 }
-PACKAGED = "global-flowcoarse3-pyramid-fullres-iwfine360"
+PACKAGED = "global-flowcoarse3-probe4-pyramid-fullres-iwfine360"
 """The variant that is the packaged ``calibrate.yaml`` (the default of ``--variants``)."""
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""

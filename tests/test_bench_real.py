@@ -188,7 +188,7 @@ def test_the_packaged_variant_is_the_packaged_config():
     assert configs[bench_real.PACKAGED] == load_calibrate_config()
     before = configs["global-pyramid-fullres-iwfine360"]
     assert before == load_calibrate_config().model_copy(
-        update={"flow_coarse_passes": 0, "flow_coarse_frames": None}
+        update={"flow_coarse_passes": 0, "flow_coarse_frames": None, "probe_frames": None}
     )
     old = configs["global-pyramid"]
     assert old.finest_focal_px is None and old.pyramid_focals_px == (90.0, 180.0)
@@ -223,12 +223,18 @@ def test_the_flow_coarse_variants_are_the_packaged_config_on_every_frame_or_thre
     name = "global-flowcoarse-pyramid-fullres-iwfine360"
     config = bench_real.variant_configs([name])[name]
     assert config.flow_coarse_passes == bench_real.FLOW_COARSE_PASSES > 0
-    packaged = config.model_copy(update={"flow_coarse_frames": bench_real.FLOW_COARSE_FRAMES})
+    packaged = config.model_copy(
+        update={"flow_coarse_frames": bench_real.FLOW_COARSE_FRAMES, "probe_frames": bench_real.PROBE_FRAMES}
+    )
     assert packaged == load_calibrate_config()
     three_frames = name.replace("flowcoarse", "flowcoarse3")
     three = bench_real.variant_configs([three_frames])[three_frames]
     assert three.flow_coarse_frames == bench_real.FLOW_COARSE_FRAMES
     assert three.model_copy(update={"flow_coarse_frames": None}) == config
+    probe4 = three_frames.replace("flowcoarse3", "flowcoarse3-probe4")
+    four = bench_real.variant_configs([probe4])[probe4]
+    assert four.probe_frames == bench_real.PROBE_FRAMES
+    assert four.model_copy(update={"probe_frames": None}) == three
 
 
 def test_the_ideal_lidar_world_starts_from_the_draws_of_the_world_it_changes(monkeypatch):

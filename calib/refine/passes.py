@@ -234,7 +234,9 @@ class CalibrateConfig(BaseModel):
         None,
         ge=1,
         description="the probe's pass runs on this many of the frames, spread evenly (null: all); "
-        "the pyramid's levels go on from its choice on every frame",
+        "the pyramid's levels go on from its choice on every frame. README (packaged: 4): the "
+        "synthetic vineyard's 12 draws from 10° / 50 cm make the same choice of start in all 12 "
+        "(11 within 2 cm / 0.2° either way); ten urban frames 0.78x the time (median of 8 draws)",
     )
     fine_intensity_weight: NonNegativeFloat | None = Field(
         None,

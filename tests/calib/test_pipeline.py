@@ -192,6 +192,38 @@ def test_the_probe_of_the_starts_runs_at_probe_focal_px(frames, matched_configs)
     assert first == {None: 360.0, 180.0: 180.0}
 
 
+def test_probe_frames_run_the_probe_on_a_subset(frames, monkeypatch):
+    """``probe_frames`` gives the probe's pass that many of the frames, spread evenly (first and
+    last); the pyramid and the finest passes go on from its choice on every frame."""
+    seen = []
+    match = EdgeMatcher.match
+
+    def recording(self, frame, T_cam_lidar):
+        seen.append((self.config.working_focal_px, id(frame)))
+        return match(self, frame, T_cam_lidar)
+
+    monkeypatch.setattr(EdgeMatcher, "match", recording)
+    config = FAST.model_copy(
+        update={
+            "passes": 1,
+            "pyramid_focals_px": (90.0,),
+            "probe_focal_px": 180.0,
+            "probe_frames": 2,
+            "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
+        }
+    )
+    T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(3))
+    result = Calibrator(config=config).calibrate(frames, T_init)
+    picked = [id(frames[i]) for i in result.frame_indices]
+    assert len(picked) == 3
+    by_focal = {}
+    for focal, frame in seen:
+        by_focal.setdefault(focal, set()).add(frame)
+    assert by_focal[180.0] == {picked[0], picked[-1]}  # the probe
+    assert by_focal[90.0] == by_focal[360.0] == set(picked)  # the pyramid, the finest passes
+    assert next(c for c in result.coarse if c["stage"] == "choice")
+
+
 class _Recording:
     """A matcher that records the extrinsics it is asked about (the EdgeMatcher underneath)."""
 
