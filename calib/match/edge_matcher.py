@@ -532,9 +532,10 @@ def _normalised_cost(
     """``(D, H, W)`` window-summed correlation ``Σ_y ⟨L(y), I(y + d)⟩`` for the ``D = (2r+1)²``
     displacements ``d`` (row-major over ``(dv, du)`` from ``(−r, −r)``), divided by the RMS of the
     image field in the displaced window (a sum, not the window's mean: a pixel's count of samples
-    is the same at every displacement, so :func:`_peak` divides by it once). Without the division the peak leans toward displacements
-    whose window holds more image edges (Cauchy–Schwarz bounds the correlation by that energy, not
-    by the match); with it, a field matched against itself peaks exactly at zero.
+    is the same at every displacement, so :func:`_peak` divides by it once). Without the division
+    by the RMS the peak leans toward displacements whose window holds more image edges
+    (Cauchy–Schwarz bounds the correlation by that energy, not by the match); with it, a field
+    matched against itself peaks exactly at zero.
 
     One displacement at a time from product to quotient, and to the running peak, so each slice
     stays in the cache (the matcher is bound by memory traffic: two threads match only 1.24x as
