@@ -11,6 +11,7 @@ from calib.data.real_fixtures import AMZ_DRIVE, AMZ_DRIVE_MORE
 from calib.data.types import Calibration, Frame
 from calib.errors import DataError
 from calib.geometry import perturb
+from calib.match import edge_matcher
 from calib.match.correspondences import Correspondences, match_frames
 from calib.match.edge_matcher import (
     RIGID_TOL_M,
@@ -21,6 +22,7 @@ from calib.match.edge_matcher import (
     _depth_model_fit,
     _nearest_seeds,
     _rigid_motion,
+    _seed_box,
     lidar_edges,
     lidar_field,
 )
@@ -138,6 +140,42 @@ def test_residuals_under_the_truth_lean_no_way_of_their_own():
     LiDAR edge a fifth of a working pixel right of the image's)."""
     medians = [np.median(EdgeMatcher().match(*_boxes_frame(0, mirror)).residual[:, 0]) for mirror in (0, 1)]
     assert abs(sum(medians) / 2) < 0.1, medians
+
+
+def test_the_field_drawn_on_its_seeds_box_is_the_field_of_the_whole_image(still_vineyard, monkeypatch):
+    """The Voronoi fill and the gradients run on the box the seeds span (widened by the fill radius
+    and the gradients' reach): the field equals the whole image's bit for bit, the inverse depth
+    equals it inside the box. The camera turned 20° up, so the rows above the LiDAR's top ring
+    fall outside the box."""
+    frame = still_vineyard[0]
+    up = np.radians(-20.0)
+    T = frame.calibration.T_cam_lidar.copy()
+    T[:3] = np.array([[1, 0, 0], [0, np.cos(up), -np.sin(up)], [0, np.sin(up), np.cos(up)]]) @ T[:3]
+    scan = project_scan(frame.points, T, frame.K, frame.image_size, None)
+    boxes = []
+
+    def recorded(seeds, margin):
+        boxes.append(_seed_box(seeds, margin))
+        return boxes[-1]
+
+    monkeypatch.setattr(edge_matcher, "_seed_box", recorded)
+    field, inverse_depth = lidar_edges(scan, frame.points, T, frame.K)
+    rows, cols = boxes[-1]
+    H, W = frame.image_size
+    assert rows.start > 0 and rows.stop - rows.start < H  # some rows left out
+    monkeypatch.setattr(edge_matcher, "_seed_box", lambda seeds, margin: (slice(0, H), slice(0, W)))
+    whole_field, whole_inverse_depth = lidar_edges(scan, frame.points, T, frame.K)
+    np.testing.assert_array_equal(field, whole_field)
+    np.testing.assert_array_equal(inverse_depth[rows, cols], whole_inverse_depth[rows, cols])
+    assert np.abs(field[:, : rows.start]).max() == 0 and np.abs(field).max() > 0
+
+
+def test_the_seed_box_holds_every_seed_with_its_margin():
+    seeds = np.zeros((40, 50), bool)
+    seeds[20, 10] = seeds[30, 12] = seeds[25, 45] = True
+    assert _seed_box(seeds, 3) == (slice(17, 34), slice(7, 49))
+    assert _seed_box(seeds, 30) == (slice(0, 40), slice(0, 50))  # within the image
+    assert _seed_box(np.zeros((4, 5), bool), 2) == (slice(0, 4), slice(0, 5))  # none: the whole image
 
 
 def test_config_rejects_typos_and_even_windows():
