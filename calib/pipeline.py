@@ -61,6 +61,15 @@ def default_matcher(config: CalibrateConfig) -> Matcher:
     return EdgeMatcher(config.edge)
 
 
+def _spread(
+    frames: list[Frame], timing: ScanTiming | None, count: int | None
+) -> tuple[list[Frame], ScanTiming | None]:
+    """``count`` of ``frames`` spread evenly (:func:`select_frames`; ``None``: all of them) and
+    their part of ``timing``."""
+    some = select_frames(len(frames), count or len(frames))
+    return [frames[i] for i in some], None if timing is None else timing.of_frames(some)
+
+
 def _passes_entry(stage: str, passes: list[dict], **extra: float) -> dict:
     """A coarse stage's passes as a line in ``result.coarse``: how many it ran and the median
     residual (its matcher's working px) before its first and after its last accepted one."""
@@ -245,15 +254,9 @@ class Calibrator:
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
         if self.config.flow_coarse_passes:  # the learned matcher's passes from the initial extrinsic
             flow_config = self.config.model_copy(update={"passes": self.config.flow_coarse_passes})
-            some = select_frames(len(frames), self.config.flow_coarse_frames or len(frames))
+            some, some_timing = _spread(frames, held, self.config.flow_coarse_frames)
             flow = refine_passes(
-                [frames[i] for i in some],
-                T_init,
-                self.coarse_matcher,
-                self.support,
-                flow_config,
-                rng,
-                timing=None if held is None else held.of_frames(some),
+                some, T_init, self.coarse_matcher, self.support, flow_config, rng, timing=some_timing
             )
             coarse_starts["flow"] = flow.T_cam_lidar
             coarse.append(_passes_entry("flow", flow.passes, frames=len(some)))
@@ -267,16 +270,9 @@ class Calibrator:
             coarser = probe is not None and probe < NEAR_FINEST * self._finest_focal(frames)
             matcher, config = self._level(probe if coarser else None)
             one_pass = config.model_copy(update={"passes": 1})
-            some = select_frames(len(frames), self.config.probe_frames or len(frames))
+            some, some_timing = _spread(frames, held, self.config.probe_frames)
             probed = refine_passes(
-                [frames[i] for i in some],
-                T_start,
-                matcher,
-                self.support,
-                one_pass,
-                rng,
-                alternatives,
-                None if held is None else held.of_frames(some),
+                some, T_start, matcher, self.support, one_pass, rng, alternatives, some_timing
             )
             T_start, alternatives = probed.T_cam_lidar, []
         restarted = None  # the passes that ran the δt restarts, where a pyramid level did
