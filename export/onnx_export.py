@@ -21,7 +21,7 @@ from calib.errors import ConfigError, DataError, NumericalError
 from supportnet.cli.output_dir import claim_output, temp_path
 from supportnet.nets.contract import METADATA_KEY, Contract
 from supportnet.nets.flow_net import LIDAR_CHANNELS, FlowConfig, FlowNet
-from supportnet.nets.support_unet import ModelConfig, SupportUNet
+from supportnet.nets.support_unet import CoarseLogits, ModelConfig, SupportUNet
 from supportnet.runtime.support_predictor import open_model
 
 __all__ = ["OPSETS", "check_opset", "export_network", "export_onnx", "load_checkpoint"]
@@ -100,7 +100,9 @@ def export_network(
     props: dict | None = None,
 ) -> dict:
     """Export a support predictor or a flow matcher (eval mode; ``contract.output`` says which) with
-    ``contract`` in its metadata, check it, write ``out``."""
+    ``contract`` in its metadata, check it, write ``out``. A :class:`SupportUNet` is exported
+    without its final upsampling (:class:`CoarseLogits`; the run time does it, as the contract's
+    ``output_stride`` says)."""
     check_opset(opset)
     rng = np.random.default_rng(0)
     images = rng.integers(0, 256, (CHECK_SHAPE[0], *CHECK_SHAPE[2:], 3), dtype=np.uint8)
@@ -108,6 +110,8 @@ def export_network(
     if contract.output == "flow":
         lidar = rng.random((CHECK_SHAPE[0], len(LIDAR_CHANNELS), *CHECK_SHAPE[2:]), dtype=np.float32)
         check["lidar"] = lidar * (lidar[:, :1] > 0.9)  # sparse, as a projected scan is
+    if isinstance(net, SupportUNet):
+        net = CoarseLogits(net)
     return _export(net, contract, out, check, contract.output, opset, tolerance, props)
 
 

@@ -1,4 +1,4 @@
-"""The pre-processing contract between training and run time (numpy and OpenCV only).
+"""The pre-processing contract between training and run time (numpy only).
 
 The exported ONNX model stores it in its metadata (key ``supportnet.contract``, JSON) and
 :class:`supportnet.runtime.support_predictor.SupportPredictor` reads it back, so a model always
@@ -12,7 +12,6 @@ import json
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 
-import cv2
 import numpy as np
 
 __all__ = ["METADATA_KEY", "Contract"]
@@ -31,6 +30,9 @@ class Contract:
         layout: input layout, always ``NCHW`` float32 RGB.
         output: ``logits`` (a support predictor, one channel) or ``flow`` (a flow matcher: two
             channels, pixels; its LiDAR input is described in ``extra``).
+        output_stride: the output comes at ``1/output_stride`` of the input padded to a multiple
+            of ``stride``; the run time upsamples it bilinearly (half-pixel centres) and crops it
+            to the input's size (1: the input's size already).
         version: of this contract.
     """
 
@@ -40,6 +42,7 @@ class Contract:
     target: str = "agreement"
     layout: str = "NCHW"
     output: str = "logits"
+    output_stride: int = 1
     version: int = 1
     extra: dict = field(default_factory=dict)
 
@@ -59,27 +62,32 @@ class Contract:
         data["mean"], data["std"] = tuple(data["mean"]), tuple(data["std"])
         return cls(**data)
 
-    def preprocess(self, images: np.ndarray) -> np.ndarray:
+    def preprocess(self, images: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """``(B, H, W, 3)`` or ``(H, W, 3)`` RGB (uint8, or float in [0, 1]) → ``(B, 3, H, W)`` float32
-        input. uint8 images go through a 256-entry table per channel (one OpenCV look-up: a tenth
-        of the time of the arithmetic on a 624x188 frame, the same values)."""
+        input, written into ``out`` where it is given (and of that shape). uint8 images go
+        through a 256-entry table per channel (a tenth of the time of the arithmetic on a 624x188
+        frame, the same values). A caller that runs many frames passes the same ``out`` each time:
+        a fresh 1.4 MB array costs its page faults anew each frame, 1–2 ms here, more than the
+        work (``SupportPredictor``)."""
         images = np.asarray(images)
         if images.ndim == 3:
             images = images[None]
         if images.ndim != 4 or images.shape[-1] != 3:
             raise ValueError(f"expected (B, H, W, 3) or (H, W, 3) RGB images, got {images.shape}")
-        out = np.empty((len(images), 3, *images.shape[1:3]), np.float32)
+        shape = (len(images), 3, *images.shape[1:3])
+        if out is None or out.shape != shape or out.dtype != np.float32:
+            out = np.empty(shape, np.float32)
         for b, image in enumerate(images):
-            if images.dtype == np.uint8:
-                normalised = cv2.LUT(np.ascontiguousarray(image), self._table)
-            else:
-                normalised = (image.astype(np.float32) - np.float32(self.mean)) / np.float32(self.std)
             for channel in range(3):
-                out[b, channel] = normalised[..., channel]
+                if images.dtype == np.uint8:
+                    np.take(self._table[channel], image[..., channel], out=out[b, channel])
+                else:
+                    plane = image[..., channel].astype(np.float32) - np.float32(self.mean[channel])
+                    np.divide(plane, np.float32(self.std[channel]), out=out[b, channel])
         return out
 
     @cached_property
     def _table(self) -> np.ndarray:
-        """``(256, 1, 3)`` float32: the normalised value of every uint8 level, per channel."""
-        levels = np.arange(256, dtype=np.float32)[:, None] / np.float32(255.0)
-        return ((levels - np.float32(self.mean)) / np.float32(self.std)).reshape(256, 1, 3)
+        """``(3, 256)`` float32: the normalised value of every uint8 level, per channel."""
+        levels = np.arange(256, dtype=np.float32)[None] / np.float32(255.0)
+        return (levels - np.float32(self.mean)[:, None]) / np.float32(self.std)[:, None]

@@ -3,9 +3,14 @@
 A small U-Net (Ronneberger et al. 2015) that runs at ``1/stem_stride`` of the input resolution:
 the support maps it learns are Gaussian sums with σ = 6 px (Eq. 2), so full-resolution features
 buy nothing but time. At 1/4 (the default; its decoder ends there) it runs twice as fast as at
-1/2 (3.4-3.7 against 7.2-7.7 ms per 624x188 frame in onnxruntime) and correlates as well with
-held-out offline maps (``benchmarks/bench_predictor.py``, the model card). Any input size works: the input
-is padded to a multiple of ``stride`` and the output cropped back.
+1/2 and correlates as well with held-out offline maps (``benchmarks/bench_predictor.py``, the
+model card). Its decoder adds each skip instead of concatenating it, as LinkNet and FPN do
+(Chaurasia & Culurciello 2017; Lin et al. 2017): the deeper features are projected (1x1) to the
+skip's width, upsampled and added, then one 3x3 convolution, a third of the concatenating
+decoder's arithmetic. Its output stays at 1/``stem_stride`` (:meth:`SupportUNet.coarse`, what
+an export computes); :meth:`SupportUNet.forward` upsamples it bilinearly to the input size, as
+:class:`~supportnet.runtime.support_predictor.SupportPredictor` does after onnxruntime. Any input
+size works: the input is padded to a multiple of ``stride`` and the output cropped back.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ from torch import nn
 
 from supportnet.nets.contract import Contract
 
-__all__ = ["ModelConfig", "SupportUNet"]
+__all__ = ["CoarseLogits", "ModelConfig", "SupportUNet", "upsample_logits"]
 
 
 class ModelConfig(BaseModel):
@@ -30,16 +35,21 @@ class ModelConfig(BaseModel):
     stem_stride: int = Field(4, ge=1, le=4, description="the network runs at 1/stem_stride resolution")
 
 
-def _block(c_in: int, c_out: int) -> nn.Sequential:
-    """Two 3x3 convolutions, each with batch norm and ReLU."""
+def _conv(c_in: int, c_out: int, kernel: int, stride: int = 1) -> nn.Sequential:
+    """A convolution (odd ``kernel``; ``1/stride`` of the size out) with batch norm and ReLU."""
     return nn.Sequential(
-        nn.Conv2d(c_in, c_out, 3, padding=1, bias=False),
-        nn.BatchNorm2d(c_out),
-        nn.ReLU(inplace=True),
-        nn.Conv2d(c_out, c_out, 3, padding=1, bias=False),
+        nn.Conv2d(c_in, c_out, kernel, stride, padding=kernel // 2, bias=False),
         nn.BatchNorm2d(c_out),
         nn.ReLU(inplace=True),
     )
+
+
+def upsample_logits(logits: torch.Tensor, size: tuple[int, int], stride: int) -> torch.Tensor:
+    """Coarse logits ``(B, 1, h, w)`` at ``1/stride`` of a padded input, upsampled bilinearly
+    (half-pixel centres) by ``stride`` and cropped to ``size (H, W)``: ``(B, 1, H, W)``."""
+    if stride > 1:
+        logits = F.interpolate(logits, scale_factor=float(stride), mode="bilinear", align_corners=False)
+    return logits[..., : size[0], : size[1]]
 
 
 class SupportUNet(nn.Module):
@@ -50,30 +60,22 @@ class SupportUNet(nn.Module):
 
     Shape:
         - image: ``(B, 3, H, W)`` normalised RGB (see :mod:`supportnet.nets.contract`), any ``H, W``.
-        - output: ``(B, 1, H, W)`` logits.
+        - output: ``(B, 1, H, W)`` logits (:meth:`coarse`: ``(B, 1, ⌈H/stride⌉·stride/stem_stride,
+          …)``, before the upsampling).
     """
 
     def __init__(self, config: ModelConfig = ModelConfig()) -> None:
         super().__init__()
         self.config = config
         widths = [config.width * 2**level for level in range(config.depth + 1)]
-        self.stem = nn.Sequential(
-            # a kernel of 2s − 1 taps sees every pixel at stride s (no aliasing gaps)
-            nn.Conv2d(
-                3,
-                widths[0],
-                2 * config.stem_stride - 1,
-                config.stem_stride,
-                config.stem_stride - 1,
-                bias=False,
-            ),
-            nn.BatchNorm2d(widths[0]),
-            nn.ReLU(inplace=True),
-        )
+        # a kernel of 2s − 1 taps sees every pixel at stride s (no aliasing gaps)
+        self.stem = _conv(3, widths[0], 2 * config.stem_stride - 1, config.stem_stride)
         self.down = nn.ModuleList(
-            _block(c_in, c_out) for c_in, c_out in zip([widths[0], *widths[:-1]], widths, strict=True)
+            nn.Sequential(_conv(c_in, c_out, 3), _conv(c_out, c_out, 3))
+            for c_in, c_out in zip([widths[0], *widths[:-1]], widths, strict=True)
         )
-        self.up = nn.ModuleList(_block(widths[i + 1] + widths[i], widths[i]) for i in range(config.depth))
+        self.project = nn.ModuleList(_conv(widths[i + 1], widths[i], 1) for i in range(config.depth))
+        self.up = nn.ModuleList(_conv(widths[i], widths[i], 3) for i in range(config.depth))
         self.head = nn.Conv2d(widths[0], 1, 1)
 
     @property
@@ -83,21 +85,38 @@ class SupportUNet(nn.Module):
 
     def contract(self, target: str = "agreement") -> Contract:
         """The pre-processing contract an export of this network carries (its config included)."""
-        return Contract(stride=self.stride, target=target, extra={"model": self.config.model_dump()})
+        return Contract(
+            stride=self.stride,
+            target=target,
+            output_stride=self.config.stem_stride,
+            extra={"model": self.config.model_dump()},
+        )
 
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
+    def coarse(self, image: torch.Tensor) -> torch.Tensor:
+        """Logits at ``1/stem_stride`` of the input padded to a multiple of :attr:`stride`."""
         H, W = image.shape[-2:]
-        pad_h, pad_w = (-H) % self.stride, (-W) % self.stride
-        x = self.stem(F.pad(image, (0, pad_w, 0, pad_h), mode="replicate"))
+        x = self.stem(F.pad(image, (0, (-W) % self.stride, 0, (-H) % self.stride), mode="replicate"))
         skips = []
         for level, block in enumerate(self.down):  # contracting path
             x = block(x if level == 0 else F.max_pool2d(x, 2))
             skips.append(x)
         x = skips.pop()
-        for block in reversed(self.up):  # expanding path with skip connections
-            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
-            x = block(torch.cat([x, skips.pop()], dim=1))
-        logits = F.interpolate(
-            self.head(x), scale_factor=float(self.config.stem_stride), mode="bilinear", align_corners=False
-        )
-        return logits[..., :H, :W]
+        for level in reversed(range(self.config.depth)):  # expanding path: skips added
+            x = F.interpolate(self.project[level](x), scale_factor=2.0, mode="bilinear", align_corners=False)
+            x = self.up[level](x + skips.pop())
+        return self.head(x)
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        return upsample_logits(self.coarse(image), image.shape[-2:], self.config.stem_stride)
+
+
+class CoarseLogits(nn.Module):
+    """What an export of a :class:`SupportUNet` computes: its :meth:`~SupportUNet.coarse` logits
+    (the run time upsamples them, :class:`~supportnet.nets.contract.Contract`'s ``output_stride``)."""
+
+    def __init__(self, net: SupportUNet) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        return self.net.coarse(image)

@@ -3,8 +3,10 @@ onnxruntime only: no torch at run time)."""
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
+import cv2
 import numpy as np
 import onnxruntime as ort
 
@@ -32,6 +34,8 @@ class SupportPredictor:
         self.path = Path(model)
         self.session, self.contract = open_model(self.path, "logits", threads)
         self.input_name = self.session.get_inputs()[0].name
+        self._input: np.ndarray | None = None  # reused frame after frame (Contract.preprocess)
+        self._lock = threading.Lock()  # for that buffer; a run uses every core anyway
 
     def predict(self, images: np.ndarray) -> np.ndarray:
         """Support of every pixel.
@@ -42,8 +46,16 @@ class SupportPredictor:
         Returns:
             ``(B, H, W)`` float32 in [0, 1].
         """
-        (logits,) = self.session.run(None, {self.input_name: self.contract.preprocess(images)})
-        support = logits[:, 0]  # the sigmoid in place, on the session's float32 output
+        with self._lock:
+            self._input = x = self.contract.preprocess(images, self._input)
+            (logits,) = self.session.run(None, {self.input_name: x})
+        support = logits[:, 0]
+        s = self.contract.output_stride
+        if s > 1:  # bilinear, half-pixel centres: torch's upsampling (SupportUNet.forward)
+            H, W = x.shape[-2:]
+            size = (support.shape[2] * s, support.shape[1] * s)
+            support = np.stack([cv2.resize(m, size, interpolation=cv2.INTER_LINEAR)[:H, :W] for m in support])
+        # the sigmoid in place, on float32 the predictor owns
         np.negative(support, out=support)
         np.exp(support, out=support)
         support += 1.0

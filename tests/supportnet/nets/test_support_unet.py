@@ -1,3 +1,5 @@
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -25,13 +27,32 @@ def test_stride_and_size_of_the_default_model():
 
 def test_cropping_back_does_not_mix_in_padding_far_from_the_border():
     """A pixel's output depends on its neighbourhood only: padding the input at the bottom-right
-    leaves the top-left output unchanged."""
+    leaves the top-left output unchanged (to float precision: the coarsest level still reaches
+    there, a little)."""
+    torch.manual_seed(0)
     net = SupportUNet(ModelConfig(width=4, depth=2)).eval()
     image = torch.randn(1, 3, 64, 64)
     with torch.no_grad():
         small = net(image)
         large = net(torch.nn.functional.pad(image, (0, 32, 0, 32), mode="replicate"))
     assert torch.allclose(small[..., :24, :24], large[..., :24, :24], atol=1e-5)
+
+
+def test_coarse_logits_upsampled_are_the_output_and_the_contract_says_so():
+    """forward is coarse() upsampled by stem_stride and cropped; a contract written before
+    output_stride existed reads as full-size output."""
+    net = SupportUNet(ModelConfig(width=4, depth=2, stem_stride=4)).eval()
+    image = torch.randn(2, 3, 37, 101)
+    with torch.no_grad():
+        coarse, full = net.coarse(image), net(image)
+    assert coarse.shape == (2, 1, 48 // 4, 112 // 4)  # padded to the stride 16, then 1/4
+    expected = torch.nn.functional.interpolate(coarse, scale_factor=4.0, mode="bilinear")[..., :37, :101]
+    assert torch.equal(full, expected)
+    contract = net.contract("support")
+    assert contract.output_stride == 4 and contract.stride == 16
+    old = json.loads(contract.to_json())
+    del old["output_stride"]
+    assert Contract.from_json(json.dumps(old)).output_stride == 1
 
 
 def test_gradients_reach_every_parameter():
