@@ -12,6 +12,7 @@ image to the RGB image. Each visible point reads the flow at its pixel.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import threading
 from collections import OrderedDict
@@ -168,14 +169,27 @@ def image_edges(image: np.ndarray, config: EdgeMatcherConfig = EdgeMatcherConfig
 
 
 def _ray_elevation(T_cam_lidar: np.ndarray, K: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
-    """``(H, W)`` float32: the elevation (°, seen from the LiDAR) of each pixel's ray."""
+    """``(H, W)`` float32, read-only: the elevation (°, seen from the LiDAR) of each pixel's ray.
+
+    It depends on the rotation, ``K`` and the size alone, which every frame of a matching round
+    shares, so the last few are remembered (a tenth of a second per ten full-resolution frames)."""
+    R = np.ascontiguousarray(T_cam_lidar[:3, :3], np.float64)
+    return _ray_elevation_of(R.tobytes(), np.ascontiguousarray(K, np.float64).tobytes(), tuple(image_size))
+
+
+@functools.lru_cache(maxsize=4)
+def _ray_elevation_of(R_bytes: bytes, K_bytes: bytes, image_size: tuple[int, int]) -> np.ndarray:
+    """:func:`_ray_elevation` of a rotation and ``K`` given as float64 bytes."""
+    R, K = np.frombuffer(R_bytes).reshape(3, 3), np.frombuffer(K_bytes).reshape(3, 3)
     H, W = image_size
     # ray of pixel (u, v) in the LiDAR frame: R_lidar_cam · K⁻¹ [u, v, 1]ᵀ, by broadcasting
-    M = (T_cam_lidar[:3, :3].T @ np.linalg.inv(K)).astype(np.float32)
+    M = (R.T @ np.linalg.inv(K)).astype(np.float32)
     u = np.arange(W, dtype=np.float32)[None, :]
     v = np.arange(H, dtype=np.float32)[:, None]
     x, y, z = (M[i, 0] * u + M[i, 1] * v + M[i, 2] for i in range(3))
-    return np.degrees(np.arctan2(z, np.hypot(x, y)))
+    elevation = np.degrees(np.arctan2(z, np.hypot(x, y)))
+    elevation.flags.writeable = False
+    return elevation
 
 
 def _fill_radius_deg(rings: RingProfile, elevation_deg: np.ndarray, config: EdgeMatcherConfig) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The pre-processing contract between training and run time (numpy only).
+"""The pre-processing contract between training and run time (numpy and OpenCV only).
 
 The exported ONNX model stores it in its metadata (key ``supportnet.contract``, JSON) and
 :class:`supportnet.runtime.support_predictor.SupportPredictor` reads it back, so a model always
@@ -12,6 +12,7 @@ import json
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 
+import cv2
 import numpy as np
 
 __all__ = ["METADATA_KEY", "Contract"]
@@ -64,11 +65,12 @@ class Contract:
 
     def preprocess(self, images: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """``(B, H, W, 3)`` or ``(H, W, 3)`` RGB (uint8, or float in [0, 1]) → ``(B, 3, H, W)`` float32
-        input, written into ``out`` where it is given (and of that shape). uint8 images go
-        through a 256-entry table per channel (a tenth of the time of the arithmetic on a 624x188
-        frame, the same values). A caller that runs many frames passes the same ``out`` each time:
-        a fresh 1.4 MB array costs its page faults anew each frame, 1–2 ms here, more than the
-        work (``SupportPredictor``)."""
+        input, written into ``out`` where it is given (and of that shape: a caller that runs
+        many frames passes the same one each time, ``SupportPredictor``). uint8 images go through
+        a 256-entry table per channel, one OpenCV look-up per channel plane straight into
+        ``out`` (a tenth of the time of the arithmetic on a 624x188 frame, the same values;
+        0.5 ms against 0.85 for one look-up of all three channels and a copy per channel, 1.7
+        against 3.4 ms at 1242x375, between onnxruntime runs on this 2-core machine)."""
         images = np.asarray(images)
         if images.ndim == 3:
             images = images[None]
@@ -78,9 +80,10 @@ class Contract:
         if out is None or out.shape != shape or out.dtype != np.float32:
             out = np.empty(shape, np.float32)
         for b, image in enumerate(images):
+            planes = cv2.split(np.ascontiguousarray(image)) if images.dtype == np.uint8 else None
             for channel in range(3):
-                if images.dtype == np.uint8:
-                    np.take(self._table[channel], image[..., channel], out=out[b, channel])
+                if planes is not None:
+                    cv2.LUT(planes[channel], self._table[channel], dst=out[b, channel])
                 else:
                     plane = image[..., channel].astype(np.float32) - np.float32(self.mean[channel])
                     np.divide(plane, np.float32(self.std[channel]), out=out[b, channel])
@@ -88,6 +91,6 @@ class Contract:
 
     @cached_property
     def _table(self) -> np.ndarray:
-        """``(3, 256)`` float32: the normalised value of every uint8 level, per channel."""
-        levels = np.arange(256, dtype=np.float32)[None] / np.float32(255.0)
-        return (levels - np.float32(self.mean)[:, None]) / np.float32(self.std)[:, None]
+        """``(3, 256, 1)`` float32: the normalised value of every uint8 level, per channel."""
+        levels = np.arange(256, dtype=np.float32)[None, :, None] / np.float32(255.0)
+        return (levels - np.float32(self.mean)[:, None, None]) / np.float32(self.std)[:, None, None]

@@ -4,11 +4,8 @@ A small U-Net (Ronneberger et al. 2015) that runs at ``1/stem_stride`` of the in
 the support maps it learns are Gaussian sums with σ = 6 px (Eq. 2), so full-resolution features
 buy nothing but time. At 1/4 (the default; its decoder ends there) it runs twice as fast as at
 1/2 and correlates as well with held-out offline maps (``benchmarks/bench_predictor.py``, the
-model card). Its decoder adds each skip instead of concatenating it, as LinkNet and FPN do
-(Chaurasia & Culurciello 2017; Lin et al. 2017): the deeper features are projected (1x1) to the
-skip's width, upsampled and added, then one 3x3 convolution, a third of the concatenating
-decoder's arithmetic. Its output stays at 1/``stem_stride`` (:meth:`SupportUNet.coarse`, what
-an export computes); :meth:`SupportUNet.forward` upsamples it bilinearly to the input size, as
+model card). Its output stays at 1/``stem_stride`` (:meth:`SupportUNet.coarse`, what an export
+computes); :meth:`SupportUNet.forward` upsamples it bilinearly to the input size, as
 :class:`~supportnet.runtime.support_predictor.SupportPredictor` does after onnxruntime. Any input
 size works: the input is padded to a multiple of ``stride`` and the output cropped back.
 """
@@ -44,6 +41,11 @@ def _conv(c_in: int, c_out: int, kernel: int, stride: int = 1) -> nn.Sequential:
     )
 
 
+def _block(c_in: int, c_out: int) -> nn.Sequential:
+    """Two 3x3 convolutions, each with batch norm and ReLU."""
+    return nn.Sequential(*_conv(c_in, c_out, 3), *_conv(c_out, c_out, 3))
+
+
 def upsample_logits(logits: torch.Tensor, size: tuple[int, int], stride: int) -> torch.Tensor:
     """Coarse logits ``(B, 1, h, w)`` at ``1/stride`` of a padded input, upsampled bilinearly
     (half-pixel centres) by ``stride`` and cropped to ``size (H, W)``: ``(B, 1, H, W)``."""
@@ -71,11 +73,9 @@ class SupportUNet(nn.Module):
         # a kernel of 2s − 1 taps sees every pixel at stride s (no aliasing gaps)
         self.stem = _conv(3, widths[0], 2 * config.stem_stride - 1, config.stem_stride)
         self.down = nn.ModuleList(
-            nn.Sequential(_conv(c_in, c_out, 3), _conv(c_out, c_out, 3))
-            for c_in, c_out in zip([widths[0], *widths[:-1]], widths, strict=True)
+            _block(c_in, c_out) for c_in, c_out in zip([widths[0], *widths[:-1]], widths, strict=True)
         )
-        self.project = nn.ModuleList(_conv(widths[i + 1], widths[i], 1) for i in range(config.depth))
-        self.up = nn.ModuleList(_conv(widths[i], widths[i], 3) for i in range(config.depth))
+        self.up = nn.ModuleList(_block(widths[i + 1] + widths[i], widths[i]) for i in range(config.depth))
         self.head = nn.Conv2d(widths[0], 1, 1)
 
     @property
@@ -101,9 +101,9 @@ class SupportUNet(nn.Module):
             x = block(x if level == 0 else F.max_pool2d(x, 2))
             skips.append(x)
         x = skips.pop()
-        for level in reversed(range(self.config.depth)):  # expanding path: skips added
-            x = F.interpolate(self.project[level](x), scale_factor=2.0, mode="bilinear", align_corners=False)
-            x = self.up[level](x + skips.pop())
+        for block in reversed(self.up):  # expanding path with skip connections
+            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+            x = block(torch.cat([x, skips.pop()], dim=1))
         return self.head(x)
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:

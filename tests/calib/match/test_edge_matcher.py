@@ -21,6 +21,7 @@ from calib.match.edge_matcher import (
     _box,
     _depth_model_fit,
     _nearest_seeds,
+    _ray_elevation,
     _rigid_motion,
     _seed_box,
     lidar_edges,
@@ -168,6 +169,23 @@ def test_the_field_drawn_on_its_seeds_box_is_the_field_of_the_whole_image(still_
     np.testing.assert_array_equal(field, whole_field)
     np.testing.assert_array_equal(inverse_depth[rows, cols], whole_inverse_depth[rows, cols])
     assert np.abs(field[:, : rows.start]).max() == 0 and np.abs(field).max() > 0
+
+
+def test_ray_elevation_known_answers_and_remembered():
+    """A camera looking along the LiDAR's x axis (KITTI's mounting): the principal point's ray is
+    level, the ray a focal length above it 45° up; the same rotation and K give the same
+    (read-only) array back."""
+    T = np.eye(4)
+    T[:3, :3] = [[0, -1, 0], [0, 0, -1], [1, 0, 0]]  # camera x = −LiDAR y, y = −z, z = x
+    K = np.array([[100.0, 0, 60], [0, 100.0, 150], [0, 0, 1]])
+    elevation = _ray_elevation(T, K, (200, 120))
+    assert elevation.shape == (200, 120) and not elevation.flags.writeable
+    assert elevation[150, 60] == pytest.approx(0, abs=1e-5)
+    assert elevation[50, 60] == pytest.approx(45, abs=1e-4)
+    assert elevation[150, 119] == pytest.approx(0, abs=1e-5)  # beside it: still level
+    assert _ray_elevation(T.copy(), K.copy(), (200, 120)) is elevation
+    T[:3, :3] = T[:3, :3] @ cv2.Rodrigues(np.array([0.0, np.radians(10), 0.0]))[0]  # turned 10° about y
+    assert _ray_elevation(T, K, (200, 120)) is not elevation
 
 
 def test_the_seed_box_holds_every_seed_with_its_margin():

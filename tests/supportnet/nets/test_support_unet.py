@@ -82,6 +82,11 @@ def test_contract_preprocess_reads_every_uint8_level_as_its_float_image():
     batch = np.stack([image, image[::-1]])  # a batch of two
     expected = contract.preprocess(batch.astype(np.float32) / 255.0)
     assert np.allclose(contract.preprocess(batch), expected, atol=1e-6)
+    # written into a buffer of the right shape (reused frame after frame), else into a new array
+    buffer = np.full(expected.shape, np.nan, np.float32)
+    assert contract.preprocess(batch, buffer) is buffer and np.allclose(buffer, expected, atol=1e-6)
+    other = contract.preprocess(batch[:1], buffer)
+    assert other is not buffer and other.shape == (1, *expected.shape[1:])
 
 
 def test_scores_known_answers():
