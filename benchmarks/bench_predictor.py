@@ -1,9 +1,11 @@
 """Stage 3 online speed: the support predictor on one frame at 624x188 (what it was trained on)
 and at KITTI's full 1242x375, onnxruntime against torch eager, the same network and weights,
 measured in one run; ``--compare OTHER.onnx`` times another exported predictor beside it (a
-ratio measured in the same run). The shipped model when it exists, else the default SupportUNet
-with random weights (speed does not depend on the weights). Prints a table and writes
-benchmarks/results/predictor.json.
+ratio measured in the same run). The network is the shipped model's architecture (else the
+default SupportUNet) with random weights, exported as ``supportnet export`` does today (speed
+does not depend on the weights); the shipped file itself is timed beside it (exported by the
+code of its day: before stop 49 its output was upsampled inside the graph). Prints a table and
+writes benchmarks/results/predictor.json.
 
     python benchmarks/bench_predictor.py [--compare OTHER.onnx]
 """
@@ -67,6 +69,8 @@ def main() -> None:
             "onnxruntime": lambda: SupportPredictor(Path(tmp) / "model.onnx").predict,
             "torch eager": lambda: eager,
         }
+        if SHIPPED_MODEL.is_file():
+            makers["onnxruntime, shipped file"] = lambda: SupportPredictor(SHIPPED_MODEL).predict
         if args.compare is not None:
             makers[f"onnxruntime, {args.compare.name}"] = lambda: SupportPredictor(args.compare).predict
         rows = {}

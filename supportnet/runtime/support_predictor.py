@@ -1,4 +1,4 @@
-"""``SupportPredictor``: Stage 3 online, the exported U-Net in onnxruntime (numpy and
+"""``SupportPredictor``: Stage 3 online, the exported U-Net in onnxruntime (numpy, OpenCV and
 onnxruntime only: no torch at run time)."""
 
 from __future__ import annotations
