@@ -102,8 +102,19 @@ def export_network(
     """Export a support predictor or a flow matcher (eval mode; ``contract.output`` says which) with
     ``contract`` in its metadata, check it, write ``out``. A :class:`SupportUNet` is exported
     without its final upsampling (:class:`CoarseLogits`; the run time does it, as the contract's
-    ``output_stride`` says)."""
+    ``output_stride`` says).
+
+    Raises:
+        ConfigError: a :class:`SupportUNet`'s contract names another ``output_stride`` than the
+            network's stem stride (the run time would upsample its output wrongly).
+    """
     check_opset(opset)
+    if isinstance(net, SupportUNet) and contract.output_stride != net.config.stem_stride:
+        raise ConfigError(
+            "contract",
+            f"output_stride {contract.output_stride} is not the network's stem stride "
+            f"{net.config.stem_stride}: use SupportUNet.contract()",
+        )
     rng = np.random.default_rng(0)
     images = rng.integers(0, 256, (CHECK_SHAPE[0], *CHECK_SHAPE[2:], 3), dtype=np.uint8)
     check = {"image": contract.preprocess(images)}

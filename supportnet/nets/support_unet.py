@@ -19,7 +19,7 @@ from torch import nn
 
 from supportnet.nets.contract import Contract
 
-__all__ = ["CoarseLogits", "ModelConfig", "SupportUNet", "upsample_logits"]
+__all__ = ["CoarseLogits", "ModelConfig", "SupportUNet"]
 
 
 class ModelConfig(BaseModel):
@@ -44,14 +44,6 @@ def _conv(c_in: int, c_out: int, kernel: int, stride: int = 1) -> nn.Sequential:
 def _block(c_in: int, c_out: int) -> nn.Sequential:
     """Two 3x3 convolutions, each with batch norm and ReLU."""
     return nn.Sequential(*_conv(c_in, c_out, 3), *_conv(c_out, c_out, 3))
-
-
-def upsample_logits(logits: torch.Tensor, size: tuple[int, int], stride: int) -> torch.Tensor:
-    """Coarse logits ``(B, 1, h, w)`` at ``1/stride`` of a padded input, upsampled bilinearly
-    (half-pixel centres) by ``stride`` and cropped to ``size (H, W)``: ``(B, 1, H, W)``."""
-    if stride > 1:
-        logits = F.interpolate(logits, scale_factor=float(stride), mode="bilinear", align_corners=False)
-    return logits[..., : size[0], : size[1]]
 
 
 class SupportUNet(nn.Module):
@@ -107,7 +99,11 @@ class SupportUNet(nn.Module):
         return self.head(x)
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
-        return upsample_logits(self.coarse(image), image.shape[-2:], self.config.stem_stride)
+        H, W = image.shape[-2:]
+        logits, s = self.coarse(image), self.config.stem_stride
+        if s > 1:  # bilinear, half-pixel centres (SupportPredictor does the same after an export)
+            logits = F.interpolate(logits, scale_factor=float(s), mode="bilinear", align_corners=False)
+        return logits[..., :H, :W]
 
 
 class CoarseLogits(nn.Module):

@@ -1,12 +1,13 @@
 import json
+from dataclasses import replace
 
 import numpy as np
 import onnx
 import pytest
 import torch
 
-from calib.errors import DataError
-from export.onnx_export import CHECK_SHAPE, export_onnx, load_checkpoint
+from calib.errors import ConfigError, DataError
+from export.onnx_export import CHECK_SHAPE, export_network, export_onnx, load_checkpoint
 from supportnet.nets.contract import METADATA_KEY
 from supportnet.nets.support_unet import ModelConfig, SupportUNet
 from supportnet.runtime.support_predictor import SupportPredictor
@@ -101,3 +102,12 @@ def test_predictor_errors_name_the_file(tmp_path):
     )
     with pytest.raises(DataError, match="no 'supportnet.contract' metadata"):
         SupportPredictor(bare)
+
+
+def test_a_contract_whose_output_stride_is_not_the_networks_is_refused(tmp_path):
+    """The export ends at the stem stride's resolution; a contract saying otherwise would make the
+    run time upsample by the wrong factor."""
+    net = SupportUNet(CONFIG).eval()
+    with pytest.raises(ConfigError, match="output_stride 1 is not the network's stem stride 2"):
+        export_network(net, replace(net.contract(), output_stride=1), tmp_path / "model.onnx")
+    assert not (tmp_path / "model.onnx").exists()
