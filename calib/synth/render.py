@@ -103,6 +103,7 @@ class Lidar:
         # beams are cast along the true directions, the points reported along the nominal ones
         error = np.radians(rig.normal(0.0, config.laser_angle_std_deg, (2, config.beams)))
         error -= error.mean(axis=1, keepdims=True)
+        self.angle_error_deg = np.degrees(error)  # (2, beams): elevation, azimuth (the truth)
         elevation = np.arcsin(np.clip(self.directions[:, 2], -1, 1)) + error[0, self.ring]
         self.cast_directions = beam_directions(elevation, azimuth + error[1, self.ring])
         # each laser's gain changes with range too, (r / 10 m)^α (drawn last: the rig's other
