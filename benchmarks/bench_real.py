@@ -138,10 +138,11 @@ SYNTH_VARIANTS = {
 """Each synthetic world as benchmarked (changes to its packaged config): the camera exposing with
 the LiDAR; with the world's default offset (5 ms urban, 20 ms vineyard); and ``ideal-lidar``, as
 ``offset0`` (the same starts) but with lasers cast and reported along the same directions. Each
-laser's angle error (``lidar.laser_angle_std_deg``, 0.12° as on a real HDL-64) is zero-mean over
-the 64 lasers, not over those a camera sees: the extrinsic the camera's view supports is not the
-nominal truth (urban seeds 301–304 from 10° / 50 cm: the packaged config ends 1.2–2.9 cm /
-0.07–0.18° from it, 0.3–1.3 cm / 0.01–0.06° on ``ideal-lidar``; README)."""
+laser's angle error (``lidar.laser_angle_std_deg``: urban 0.025°, as KITTI's HDL-64 shows in its
+own scans, bench_laser_angles; vineyard 0.12°) is zero-mean over the 64 lasers, not over those a
+camera sees: the extrinsic the camera's view supports is not the nominal truth (urban seeds
+301–304 from 10° / 50 cm with 0.12° lasers: the packaged config ends 1.2–2.9 cm / 0.07–0.18°
+from it, 0.3–1.3 cm / 0.01–0.06° on ``ideal-lidar``; README)."""
 SYNTH_PAIRED = {"ideal-lidar": "offset0"}
 """Variants whose runs start from the draws of another (the world they change one thing of)."""
 RESULTS = Path(__file__).parent / "results"

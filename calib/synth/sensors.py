@@ -64,8 +64,10 @@ class LidarConfig(BaseModel):
         le=2,
         description="std of each laser's elevation and azimuth error, fixed per rig and zero-mean "
         "over the lasers: the points are reported along the nominal beams but measured along the "
-        "true ones, as a factory calibration leaves them (0.12 brings the matcher's error on the "
-        "vineyard within 1.5x of real KITTI's, bench_realism)",
+        "true ones, as a factory calibration leaves them (KITTI's HDL-64 shows 0.024° in elevation "
+        "and under 0.01° in azimuth in its own scans, bench_laser_angles: the urban world's 0.025; "
+        "the vineyard keeps 0.12, which brings the matcher's error there within 1.5x of real "
+        "KITTI's, bench_realism)",
     )
 
     @model_validator(mode="after")
