@@ -17,6 +17,7 @@ import time
 from collections.abc import Mapping
 from collections.abc import Sequence as FrameList
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -28,11 +29,20 @@ from calib.init.motion_init import Stage1Config, Stage1Result, initial_calibrati
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
 from calib.motion import ScanMotion
+from calib.moving import without_moving
 from calib.observability import weak_directions
 from calib.refine.contour_refine import contour_refine
 from calib.refine.frame_selection import contour_information, select_informative
 from calib.refine.global_search import global_search
-from calib.refine.passes import CalibrateConfig, ScanTiming, load_calibrate_config, refine_passes, scan_timing
+from calib.refine.passes import (
+    CalibrateConfig,
+    ScanTiming,
+    load_calibrate_config,
+    point_times,
+    refine_passes,
+    scan_timing,
+    sweep_model,
+)
 from calib.refine.tracking import OnlineState, departure, extrinsic_of
 from calib.results import CalibrationResult, OnlineEstimate
 from calib.support.source import SupportSource, UniformSupport
@@ -141,15 +151,18 @@ class Calibrator:
         frames: list[Frame],
         known: Mapping[int, ScanMotion] | str | None,
         initial_s: float | None = None,
-    ) -> tuple[ScanTiming | None, str]:
+    ) -> tuple[ScanTiming | None, str, list[Frame], list[int]]:
         """How the used frames' points move to the camera's time (``known`` motions, else LiDAR
         odometry around each), or ``None`` and why the points stay as measured; ``δt`` starts at
-        ``initial_s`` (Stage 1's) where given, else at the config's."""
+        ``initial_s`` (Stage 1's) where given, else at the config's. With the motion, the frames
+        lose the points that the scans before and after them show moving
+        (``outliers.moving``): returned with how many each lost."""
         cfg = self.config.time_offset
+        none = [0] * len(frames)
         if cfg.mode == "off":
-            return None, "not modelled (time_offset.mode: off): points as measured"
+            return None, "not modelled (time_offset.mode: off): points as measured", frames, none
         if isinstance(known, str):
-            return None, f"not modelled, points as measured: {known}"
+            return None, f"not modelled, points as measured: {known}", frames, none
         if known is not None:
             missing = [i for i in picks if i not in known]
             if missing:
@@ -158,8 +171,16 @@ class Calibrator:
         else:
             motions, why = scan_motions(seq, picks, cfg.neighbours, deskew_rounds=cfg.deskew_rounds)
             if motions is None:
-                return None, f"not modelled, points as measured: {why}"
-        return scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
+                return None, f"not modelled, points as measured: {why}", frames, none
+        moving = self.config.outliers.moving
+        lost = none
+        if moving.enabled:
+            sweep = sweep_model(cfg)
+            frames, lost = without_moving(
+                seq, picks, frames, motions, moving, partial(point_times, sweep=sweep)
+            )
+        timing, note = scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
+        return timing, note, frames, lost
 
     def _level(self, focal: float | None = None, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:
         """The matcher and config of one level: the edge matcher at working focal length ``focal``
@@ -233,7 +254,7 @@ class Calibrator:
         T_init = _checked_extrinsic(T_init, "T_init")
         picks, loaded = self._pick_frames(seq, T_init)
         frames = [loaded[i] if i in loaded else seq[i] for i in picks]
-        timing, timing_note = self._scan_timing(seq, picks, frames, motions, stage1_offset)
+        timing, timing_note, frames, moving = self._scan_timing(seq, picks, frames, motions, stage1_offset)
         # the coarse stages see the points at the camera's time under the initial δt
         seen = frames if timing is None else timing.frames_at(frames, timing.offset_s)
         coarse_starts: dict[str, np.ndarray] = {}  # other starts for the passes, by origin
@@ -353,6 +374,7 @@ class Calibrator:
             time_offset_std_s=passes.time_offset_std_s,
             time_offset_note=timing_note,
             time_offset_reference_s=_stamp_offset(frames),
+            moving_points=moving,
         )
 
 

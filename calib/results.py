@@ -56,6 +56,7 @@ class CalibrationResult:
             (``None``: not moved), and its std (``None``: held, not estimated).
         time_offset_note: how ``δt`` was found, or why it was held.
         time_offset_reference_s: the frames' camera stamp minus LiDAR stamp, where known.
+        moving_points: per used frame, the points left out as moving (:mod:`calib.moving`).
     """
 
     T_cam_lidar: np.ndarray
@@ -73,6 +74,7 @@ class CalibrationResult:
     time_offset_std_s: float | None = None
     time_offset_note: str = ""
     time_offset_reference_s: float | None = None
+    moving_points: list[int] = field(default_factory=list)
 
     @property
     def error(self) -> CalibrationError | None:
@@ -107,6 +109,7 @@ class CalibrationResult:
             "time_offset_std_s": self.time_offset_std_s,
             "time_offset_note": self.time_offset_note,
             "time_offset_reference_s": self.time_offset_reference_s,
+            "moving_points": list(self.moving_points),
             "support": self.support,
             "frames": len(self.frame_indices),
             "frame_indices": list(self.frame_indices),

@@ -141,6 +141,11 @@ class Frame:
         """``(H, W)``."""
         return int(self.image.shape[0]), int(self.image.shape[1])
 
+    @property
+    def scan_stamp(self) -> float | None:
+        """The scan's time: ``lidar_timestamp`` where known, else ``timestamp``."""
+        return self.lidar_timestamp if self.lidar_timestamp is not None else self.timestamp
+
 
 class Sequence(abc.ABC, SequenceABC):
     """A random-access list of frames with one calibration (what every stage consumes).

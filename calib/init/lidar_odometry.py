@@ -72,10 +72,6 @@ def lidar_odometry(
     return np.stack(poses)
 
 
-def _stamp(frame: Frame) -> float | None:
-    return frame.lidar_timestamp if frame.lidar_timestamp is not None else frame.timestamp
-
-
 def _above_ground(points_lidar: np.ndarray, clearance_m: float = 0.3) -> np.ndarray:
     """``(N,)`` bool: points more than ``clearance_m`` above the scan's lowest (5th percentile)
     height, the LiDAR's z pointing up. A rotating LiDAR lays the same rings on flat ground at every
@@ -129,7 +125,7 @@ def scan_motions(
     found: dict[int, ScanMotion] = {}
     for first, last in stretches:
         frames = [seq[j] for j in range(first, last + 1)]
-        stamps = [_stamp(f) for f in frames]
+        stamps = [f.scan_stamp for f in frames]
         if any(t is None for t in stamps):
             return None, "the frames have no time stamps"
         gaps = np.diff(stamps)

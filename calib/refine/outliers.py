@@ -1,6 +1,7 @@
 """What Stage 4 leaves out on real frames: points too near the sensor (the ego-vehicle, a mount),
-whole frames whose residuals disagree with the others (a frame dominated by moving objects, a
-blurred or overexposed image), and single correspondences far off the fitted extrinsic (moving
+points on moving things where consecutive scans show them (:mod:`calib.moving`), whole frames
+whose residuals disagree with the others (a frame dominated by moving objects, a blurred or
+overexposed image), and single correspondences far off the fitted extrinsic (moving
 objects, occlusion halos, edges the LiDAR and the camera do not share).
 
 The robust loss of Eq. 4 already down-weights outliers; these rules remove what it cannot: a
@@ -12,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+
+from calib.moving import MovingConfig
 
 __all__ = ["OutlierConfig", "frame_outliers", "near_points", "trim_points"]
 
@@ -43,6 +46,11 @@ class OutlierConfig(BaseModel):
     )
     point_floor_px: float = Field(
         2.0, ge=0, description="a correspondence this close to the fit is always kept"
+    )
+    moving: MovingConfig = Field(
+        MovingConfig(),
+        description="points on things that move, found from the scans before and after each frame "
+        "(calib.moving): an oncoming car seen 5 ms later pulls δt and the translation along the drive",
     )
 
 

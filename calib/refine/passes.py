@@ -39,8 +39,10 @@ __all__ = [
     "ScanTiming",
     "TimeOffsetConfig",
     "draw",
+    "point_times",
     "refine_passes",
     "scan_timing",
+    "sweep_model",
 ]
 
 
@@ -335,7 +337,7 @@ class ScanTiming:
         stamp = []
         for frame, motion in zip(frames, motions, strict=True):
             points = frame.points[:, :3].astype(np.float64)
-            times = frame.point_times if frame.point_times is not None or sweep is None else sweep(points)
+            times = point_times(frame, sweep)
             stamp.append(points if times is None else motion.deskew(points, times))
         return cls(motions, stamp, offset_s, estimate, max_std_s, restarts_s if estimate else ())
 
@@ -359,6 +361,27 @@ class ScanTiming:
         ]
 
 
+def sweep_model(config: TimeOffsetConfig) -> Callable[[np.ndarray], np.ndarray] | None:
+    """Per-point times from each point's azimuth as ``config.sweep`` says
+    (:func:`~calib.motion.sweep_times`), or ``None`` where only recorded times count."""
+    if config.sweep == "recorded":
+        return None
+    return partial(
+        sweep_times,
+        period_s=config.sweep_period_s,
+        clockwise=config.sweep == "clockwise",
+        stamp_azimuth_deg=config.sweep_stamp_azimuth_deg,
+    )
+
+
+def point_times(frame: Frame, sweep: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray | None:
+    """``(N,)`` the frame's per-point times from its stamp: recorded, else from ``sweep`` (its
+    :func:`sweep_model`), else ``None`` (not deskewed)."""
+    if frame.point_times is not None or sweep is None:
+        return frame.point_times
+    return sweep(frame.points[:, :3].astype(np.float64))
+
+
 def scan_timing(
     frames: Sequence[Frame],
     motions: Sequence[ScanMotion],
@@ -380,16 +403,7 @@ def scan_timing(
             f"translation (speed spread {speed:.2f} m/s, turn-rate spread {turn:.3f} rad/s; needs "
             f"{config.min_speed_spread_mps:g} or {config.min_turn_spread_radps:g})"
         )
-    sweep = (
-        None
-        if config.sweep == "recorded"
-        else partial(
-            sweep_times,
-            period_s=config.sweep_period_s,
-            clockwise=config.sweep == "clockwise",
-            stamp_azimuth_deg=config.sweep_stamp_azimuth_deg,
-        )
-    )
+    sweep = sweep_model(config)
     shifts = tuple(ms / 1e3 for ms in config.restarts_ms) if restarts else ()
     return ScanTiming.of(frames, motions, offset_s, estimate, config.max_std_s, sweep, shifts), note
 

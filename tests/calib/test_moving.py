@@ -1,0 +1,118 @@
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from calib.data.types import Calibration, Frame
+from calib.motion import ScanMotion
+from calib.moving import MovingConfig, moving_points, without_moving
+
+
+def _scan(origin=(0.0, 0.0), boxes=(), step_deg=0.2) -> tuple[np.ndarray, np.ndarray]:
+    """A 32-ring scan from ``origin`` (x, y; metres) of a round room (radius 15 m around the
+    world's origin, walls 6 m high, floor 1.7 m below the sensor) holding ``boxes``: each
+    ``(x, y, half_size)``, an axis-aligned box from the floor up to 0.2 m above the sensor.
+    Returns the points in the sensor frame and which hit a box."""
+    el, az = np.meshgrid(np.radians(np.linspace(2.0, -15.0, 32)), np.radians(np.arange(-180, 180, step_deg)))
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1).reshape(-1, 3)
+    o = np.array([*origin, 0.0])
+    # the wall: |o_xy + t d_xy| = 15
+    a, b = (d[:, :2] ** 2).sum(1), 2 * (d[:, :2] @ o[:2])
+    wall = (-b + np.sqrt(b * b - 4 * a * (o[:2] @ o[:2] - 15.0**2))) / (2 * a)
+    floor = np.where(d[:, 2] < 0, -1.7 / np.minimum(d[:, 2], -1e-9), np.inf)
+    t, hit_box = np.minimum(wall, floor), np.zeros(len(d), bool)
+    for x, y, h in boxes:  # slab test against [x±h] x [y±h] x [-1.7, 0.2]
+        lo, hi = np.array([x - h, y - h, -1.7]) - o, np.array([x + h, y + h, 0.2]) - o
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = lo / d, hi / d
+        near, far = np.nanmax(np.minimum(t1, t2), 1), np.nanmin(np.maximum(t1, t2), 1)
+        hit = (near <= far) & (near > 0) & (near < t)
+        t, hit_box = np.where(hit, near, t), hit_box | hit
+    return d * t[:, None], hit_box
+
+
+def test_a_box_that_moved_is_seen_through_and_the_room_is_not():
+    points, box = _scan(boxes=[(6.0, 0.0, 1.0)])
+    before, _ = _scan(boxes=[(6.0, -3.0, 1.0)])  # the box 3 m to the side in the scans around
+    after, _ = _scan(boxes=[(6.0, 3.0, 1.0)])
+    moving = moving_points(points, [before, after])
+    assert moving.shape == (len(points),)
+    assert box.sum() > 100 and moving[box].mean() > 0.95
+    assert moving[~box].mean() < 0.002
+
+
+def test_a_box_that_stayed_and_one_hidden_are_not_convicted():
+    points, box = _scan(boxes=[(6.0, 0.0, 1.0)])
+    assert not moving_points(points, [points.copy()]).any()
+    # another scan that sees the box's place only behind something nearer knows nothing of it
+    hidden, _ = _scan(boxes=[(3.0, 0.0, 1.2)])
+    assert moving_points(points, [hidden])[box].mean() < 0.02
+    assert not moving_points(points, []).any()
+
+
+def test_a_static_room_seen_from_a_moving_sensor_stays():
+    boxes = [(6.0, 0.0, 0.5), (4.0, 5.0, 0.3)]  # a pillar and a post, static
+    points, _ = _scan(origin=(0.0, 0.0), boxes=boxes)
+    others = []
+    for dx in (-2.4, 2.4):  # the sensor 2.4 m back and ahead, its points carried here
+        other, _ = _scan(origin=(dx, 0.0), boxes=boxes)
+        others.append(other + [dx, 0.0, 0.0])
+    assert moving_points(points, others).mean() < 0.005
+
+
+@pytest.mark.parametrize("margin_m", [0.5, 12.0])
+def test_a_larger_margin_convicts_less(margin_m):
+    points, box = _scan(boxes=[(6.0, 0.0, 1.0)])
+    before, _ = _scan(boxes=[(6.0, -3.0, 1.0)])
+    share = moving_points(points, [before], MovingConfig(margin_m=margin_m))[box].mean()
+    # the wall lies at most 10 m behind the box's face: a 12 m margin convicts none of it
+    assert share > 0.9 if margin_m == 0.5 else share == 0
+
+
+def _frames(box_y: list[float]) -> list[Frame]:
+    """Scans 0.1 s apart of a still sensor, a box at ``y = box_y[k]`` in scan ``k``; labels 1 on
+    the box, 0 elsewhere."""
+    frames = []
+    for k, y in enumerate(box_y):
+        points, box = _scan(boxes=[(6.0, y, 1.0)])
+        frames.append(
+            Frame(
+                image=np.zeros((4, 4, 3), np.uint8),
+                points=np.column_stack([points, np.ones(len(points))]).astype(np.float32),
+                calibration=Calibration(K=np.eye(3), T_cam_lidar=np.eye(4)),
+                index=k,
+                timestamp=0.1 * k,
+                labels=box.astype(np.uint16),
+            )
+        )
+    return frames
+
+
+def test_without_moving_drops_them_from_the_frames_that_have_scans_around():
+    seq = _frames([-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0])  # the box drives 10 m/s across
+    config = MovingConfig(scans_apart=3)
+    picks = [3, 0]
+    kept, lost = without_moving(
+        seq, picks, [seq[i] for i in picks], [ScanMotion.still()] * 2, config, lambda f: None
+    )
+    box = seq[3].labels == 1
+    assert lost[0] > 0.95 * box.sum() and lost[0] < box.sum() + 10
+    assert len(kept[0].points) == len(seq[3].points) - lost[0]
+    assert kept[0].labels.sum() < 0.05 * box.sum()  # labels follow their points
+    # frame 0 has scan 3 after it (its box 3 m away): it loses its box too
+    assert lost[1] > 0.9 * (seq[0].labels == 1).sum()
+    # without stamps a frame keeps its points
+    unstamped = [replace(f, timestamp=None) for f in seq]
+    _, lost = without_moving(unstamped, [3], [unstamped[3]], [ScanMotion.still()], config, lambda f: None)
+    assert lost == [0]
+
+
+def test_an_object_half_seen_through_moves_as_a_whole():
+    points, box = _scan(boxes=[(6.0, 0.0, 1.0)])
+    nudged, _ = _scan(boxes=[(6.0, 1.2, 1.0)])  # moved 1.2 m: the other scan sees through its left part
+    alone = moving_points(points, [nudged], MovingConfig(object_share=1.0))
+    assert 0.3 < alone[box].mean() < 0.8
+    # the cluster's verdict: all of it above the ground (the lowest return of each 2 m cell, here
+    # the box's own lowest, 1.34 m down, and 0.25 m above it count as ground)
+    voted = moving_points(points, [nudged])
+    assert voted[box & (points[:, 2] > -1.05)].all()
