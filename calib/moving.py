@@ -20,6 +20,11 @@ above the local ground (each 2 m cell's lowest return) fall into connected clust
 ``voxel_m`` voxels, and a cluster with ``object_share`` of its points convicted is moving as a
 whole (synthetic urban, four scans: the moving cars' points found 61–93 % point by point,
 86–99 % with the clusters; 0.1–0.4 % of the static points taken with them).
+
+Only where ``δt`` is fitted (:class:`calib.pipeline.Calibrator`): a moving thing is wrong
+evidence only when camera and LiDAR see it at different times, and otherwise its edges are as
+good as a wall's (urban in sync, 10° / 50 cm: leaving the cars out took the median from 0.86 to
+1.16 cm).
 """
 
 from __future__ import annotations
@@ -46,8 +51,10 @@ class MovingConfig(BaseModel):
 
     enabled: bool = Field(
         True,
-        description="leave out the points other scans see through (needs consecutive scans and the "
-        "LiDAR's motion: time_offset not off)",
+        description="where δt is estimated, leave out the points the scans around see through (needs "
+        "consecutive scans and the LiDAR's motion); with δt held the moving cars stay: seen at "
+        "the scan's time they are evidence like any other (synthetic urban in sync, from 10° / "
+        "50 cm: median 0.86 cm with them, 1.16 without)",
     )
     scans_apart: int = Field(
         3,

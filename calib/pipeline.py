@@ -154,8 +154,8 @@ class Calibrator:
     ) -> tuple[ScanTiming | None, str, list[Frame], list[int]]:
         """How the used frames' points move to the camera's time (``known`` motions, else LiDAR
         odometry around each), or ``None`` and why the points stay as measured; ``δt`` starts at
-        ``initial_s`` (Stage 1's) where given, else at the config's. With the motion, the frames
-        lose the points that the scans before and after them show moving
+        ``initial_s`` (Stage 1's) where given, else at the config's. Where ``δt`` is estimated, the
+        frames lose the points that the scans before and after them show moving
         (``outliers.moving``): returned with how many each lost."""
         cfg = self.config.time_offset
         none = [0] * len(frames)
@@ -172,14 +172,13 @@ class Calibrator:
             motions, why = scan_motions(seq, picks, cfg.neighbours, deskew_rounds=cfg.deskew_rounds)
             if motions is None:
                 return None, f"not modelled, points as measured: {why}", frames, none
-        moving = self.config.outliers.moving
-        lost = none
-        if moving.enabled:
-            sweep = sweep_model(cfg)
-            frames, lost = without_moving(
-                seq, picks, frames, motions, moving, partial(point_times, sweep=sweep)
-            )
-        timing, note = scan_timing(frames, motions, cfg, cfg.initial_s if initial_s is None else initial_s)
+        initial_s = cfg.initial_s if initial_s is None else initial_s
+        timing, note = scan_timing(frames, motions, cfg, initial_s)
+        moving, lost = self.config.outliers.moving, none
+        if moving.enabled and timing.estimate:  # a moving car seen δt later pulls δt (README)
+            times = partial(point_times, sweep=sweep_model(cfg))
+            frames, lost = without_moving(seq, picks, frames, motions, moving, times)
+            timing, note = scan_timing(frames, motions, cfg, initial_s)
         return timing, note, frames, lost
 
     def _level(self, focal: float | None = None, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:
