@@ -77,9 +77,11 @@ def _frames(box_y: list[float]) -> list[Frame]:
         points, box = _scan(boxes=[(6.0, y, 1.0)])
         frames.append(
             Frame(
-                image=np.zeros((4, 4, 3), np.uint8),
+                image=np.zeros((100, 100, 3), np.uint8),
                 points=np.column_stack([points, np.ones(len(points))]).astype(np.float32),
-                calibration=Calibration(K=np.eye(3), T_cam_lidar=np.eye(4)),
+                calibration=Calibration(
+                    K=np.array([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]]), T_cam_lidar=np.eye(4)
+                ),
                 index=k,
                 timestamp=0.1 * k,
                 labels=box.astype(np.uint16),
@@ -116,3 +118,42 @@ def test_an_object_half_seen_through_moves_as_a_whole():
     # the box's own lowest, 1.34 m down, and 0.25 m above it count as ground)
     voted = moving_points(points, [nudged])
     assert voted[box & (points[:, 2] > -1.05)].all()
+
+
+@pytest.mark.parametrize("mode", ["estimate", "fixed"])
+def test_the_calibrator_leaves_them_out_where_it_estimates_the_time_offset(monkeypatch, mode):
+    import calib.pipeline as pipeline
+    from calib.refine.passes import CalibrateConfig, PassesResult
+
+    seen = []
+
+    def recording(frames, T_init, matcher, support, config, rng, alternatives=(), timing=None):
+        seen.append([len(f.points) for f in frames])
+        return PassesResult(T_init, np.eye(6) * 1e-6, [], 100, time_offset_s=timing.offset_s)
+
+    monkeypatch.setattr(pipeline, "refine_passes", recording)
+    base = CalibrateConfig(frames=7)
+    config = base.model_copy(
+        update={
+            "finest_focal_px": 100.0,
+            "pyramid_focals_px": (),
+            "coarse": base.coarse.model_copy(update={"enabled": False}),
+            "time_offset": base.time_offset.model_copy(
+                update={"mode": mode, "min_speed_spread_mps": 1e-9, "restarts_ms": ()}
+            ),
+        }
+    )
+    seq = _frames([-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0])
+    # the sensor stands (its speeds differ by micrometres a second: enough to tell δt apart)
+    motions = {
+        k: ScanMotion(np.array([1e-6 * k, 0, 0, 0, 0, 0]), np.array([1e-6 * k, 0, 0, 0, 0, 0]))
+        for k in range(7)
+    }
+    result = pipeline.Calibrator(config=config).calibrate(seq, np.eye(4), motions=motions)
+    boxes = [int((f.labels == 1).sum()) for f in seq]
+    if mode == "fixed":
+        assert result.moving_points == [0] * 7 and seen[0] == [len(f.points) for f in seq]
+    else:  # every frame has a scan 3 apart on one side at least, its box 3 m away
+        assert all(0.9 * b < lost < b + 10 for lost, b in zip(result.moving_points, boxes, strict=True))
+        assert seen[0] == [len(f.points) - lost for f, lost in zip(seq, result.moving_points, strict=True)]
+        assert result.to_dict()["moving_points"] == result.moving_points
