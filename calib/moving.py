@@ -26,7 +26,7 @@ ones; the vineyard 0–0.02 %).
 Only where ``δt`` is fitted (:class:`calib.pipeline.Calibrator`): a moving thing is wrong
 evidence only when camera and LiDAR see it at different times, and otherwise its edges are as
 good as a wall's (urban in sync, 10° / 50 cm: leaving the cars out took the median from 0.86 to
-1.16 cm).
+1.16 cm; README).
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ class MovingConfig(BaseModel):
         description="where δt is estimated, leave out the points the scans around see through (needs "
         "consecutive scans and the LiDAR's motion); with δt held the moving cars stay: seen at "
         "the scan's time they are evidence like any other (synthetic urban in sync, from 10° / "
-        "50 cm: median 0.86 cm with them, 1.16 without)",
+        "50 cm: median 0.86 cm with them, 1.16 without, README)",
     )
     scans_apart: int = Field(
         3,
