@@ -9,7 +9,7 @@ LiDAR's motion), a point on a moving car lies where the other scans saw *through
 in its direction lying beyond it. That free-space test (as Removert's range images do) leaves
 alone what another scan did not see (occluded, or out of range): only a farther return
 convicts. Each other scan's returns are binned by direction from this scan's centre, each bin
-keeping its nearest, and a point is moving where, in every bin around its own, the other scan's
+keeping its nearest, and a point is seen through where, in every bin around its own, the other scan's
 nearest return lies more than ``margin_m + margin·r`` beyond it (the bins around take in a static
 edge's parallax: seen from a few metres away, the wall behind a pole shows beside it).
 
