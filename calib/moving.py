@@ -189,21 +189,24 @@ def without_moving(
     seq: Sequence[Frame],
     positions: Sequence[int],
     frames: Sequence[Frame],
+    stamps: Sequence[np.ndarray],
     motions: Sequence[ScanMotion],
     config: MovingConfig,
     times_of: Callable[[Frame], np.ndarray | None],
     max_gap_s: float = 0.25,
-) -> tuple[list[Frame], list[int]]:
+) -> tuple[list[Frame], list[np.ndarray]]:
     """``frames`` (those at ``positions`` of ``seq``) less their :func:`moving_points`, seen from
     the scans ``config.scans_apart`` before and after each, carried by its ``motions`` entry; and
-    how many points each lost. A frame without such scans (an end of ``seq``, stamps more than
-    ``max_gap_s`` per scan apart, no stamps) keeps its points.
+    which points each lost (``(N,)`` bool). A frame without such scans (an end of ``seq``, stamps
+    more than ``max_gap_s`` per scan apart, no stamps) keeps its points.
 
     Args:
-        times_of: a frame's per-point times from its stamp (deskewing), or ``None``.
+        stamps: each frame's points ``(N, 3)`` at its stamp (deskewed; the
+            :class:`calib.refine.passes.ScanTiming`'s).
+        times_of: a frame's per-point times from its stamp (deskewing the scans around), or ``None``.
     """
     kept, lost = [], []
-    for i, frame, motion in zip(positions, frames, motions, strict=True):
+    for i, frame, stamp, motion in zip(positions, frames, stamps, motions, strict=True):
         t_i = frame.scan_stamp
         others = []
         for j in (i - config.scans_apart, i + config.scans_apart):
@@ -214,22 +217,15 @@ def without_moving(
             if t_j is None or not 0 < abs(t_j - t_i) <= max_gap_s * config.scans_apart:
                 continue
             # its points at its stamp (deskewed with this frame's motion, near enough), then here
-            points = _at_stamp(other, motion, times_of(other))
+            points = other.points[:, :3].astype(np.float64)
+            times = times_of(other)
+            points = points if times is None else motion.deskew(points, times)
             T = motion.pose(t_j - t_i)  # T_Li_Lj: the LiDAR at t_j in its frame at t_i
             others.append(points @ T[:3, :3].T + T[:3, 3])
-        if not others:
-            kept.append(frame)
-            lost.append(0)
-            continue
-        moving = moving_points(_at_stamp(frame, motion, times_of(frame)), others, config)
+        moving = moving_points(stamp, others, config)
         kept.append(_subset(frame, ~moving) if moving.any() else frame)
-        lost.append(int(moving.sum()))
+        lost.append(moving)
     return kept, lost
-
-
-def _at_stamp(frame: Frame, motion: ScanMotion, times: np.ndarray | None) -> np.ndarray:
-    points = frame.points[:, :3].astype(np.float64)
-    return points if times is None else motion.deskew(points, times)
 
 
 def _subset(frame: Frame, keep: np.ndarray) -> Frame:

@@ -177,8 +177,9 @@ class Calibrator:
         moving, lost = self.config.outliers.moving, none
         if moving.enabled and timing.estimate:  # a moving car seen δt later pulls δt (README)
             times = partial(point_times, sweep=sweep_model(cfg))
-            frames, lost = without_moving(seq, picks, frames, motions, moving, times)
-            timing, note = scan_timing(frames, motions, cfg, initial_s)
+            frames, masks = without_moving(seq, picks, frames, timing.stamp, motions, moving, times)
+            timing = replace(timing, stamp=[q[~m] for q, m in zip(timing.stamp, masks, strict=True)])
+            lost = [int(m.sum()) for m in masks]
         return timing, note, frames, lost
 
     def _level(self, focal: float | None = None, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:

@@ -112,9 +112,10 @@ def test_without_moving_drops_them_from_the_frames_that_have_scans_around():
     seq = _frames([-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0])  # the box drives 10 m/s across
     config = MovingConfig(scans_apart=3)
     picks = [3, 0]
-    kept, lost = without_moving(
-        seq, picks, [seq[i] for i in picks], [ScanMotion.still()] * 2, config, lambda f: None
-    )
+    frames = [seq[i] for i in picks]
+    stamps = [f.points[:, :3].astype(np.float64) for f in frames]  # a still sensor: as measured
+    kept, masks = without_moving(seq, picks, frames, stamps, [ScanMotion.still()] * 2, config, lambda f: None)
+    lost = [int(m.sum()) for m in masks]
     box = seq[3].labels == 1
     assert (box & (seq[3].points[:, 2] > ABOVE_GROUND)).sum() <= lost[0] <= box.sum()
     assert len(kept[0].points) == len(seq[3].points) - lost[0]
@@ -124,8 +125,11 @@ def test_without_moving_drops_them_from_the_frames_that_have_scans_around():
     assert (box & (seq[0].points[:, 2] > ABOVE_GROUND)).sum() <= lost[1] <= box.sum()
     # without stamps a frame keeps its points
     unstamped = [replace(f, timestamp=None) for f in seq]
-    _, lost = without_moving(unstamped, [3], [unstamped[3]], [ScanMotion.still()], config, lambda f: None)
-    assert lost == [0]
+    stamps = [unstamped[3].points[:, :3].astype(np.float64)]
+    _, masks = without_moving(
+        unstamped, [3], [unstamped[3]], stamps, [ScanMotion.still()], config, lambda f: None
+    )
+    assert [int(m.sum()) for m in masks] == [0]
 
 
 @pytest.mark.parametrize("mode", ["estimate", "fixed"])
