@@ -24,7 +24,7 @@ import numpy as np
 from calib.data.extrinsic_file import rigid_problem
 from calib.data.types import Frame, Sequence
 from calib.errors import ConfigError, DataError
-from calib.init.lidar_odometry import scan_motions
+from calib.init.lidar_odometry import SequenceMotions, scan_motions
 from calib.init.motion_init import Stage1Config, Stage1Result, initial_calibration, load_stage1_config
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
@@ -149,11 +149,12 @@ class Calibrator:
         seq: Sequence | FrameList[Frame],
         picks: list[int],
         frames: list[Frame],
-        known: Mapping[int, ScanMotion] | str | None,
+        known: Mapping[int, ScanMotion] | SequenceMotions | str | None,
         initial_s: float | None = None,
     ) -> tuple[ScanTiming | None, str, list[Frame], list[int]]:
         """How the used frames' points move to the camera's time (``known`` motions, else LiDAR
-        odometry around each), or ``None`` and why the points stay as measured; ``δt`` starts at
+        odometry around each, remembered by ``known`` where it is a :class:`SequenceMotions` of
+        ``seq``), or ``None`` and why the points stay as measured; ``δt`` starts at
         ``initial_s`` (Stage 1's) where given, else at the config's. Where ``δt`` is estimated, the
         frames lose the points that the scans before and after them show moving
         (``outliers.moving``): returned with how many each lost."""
@@ -163,13 +164,21 @@ class Calibrator:
             return None, "not modelled (time_offset.mode: off): points as measured", frames, none
         if isinstance(known, str):
             return None, f"not modelled, points as measured: {known}", frames, none
-        if known is not None:
+        if isinstance(known, Mapping):
             missing = [i for i in picks if i not in known]
             if missing:
                 raise DataError("motions", f"have no motion for the frames at positions {missing}")
             motions = [known[i] for i in picks]
         else:
-            motions, why = scan_motions(seq, picks, cfg.neighbours, deskew_rounds=cfg.deskew_rounds)
+            memo = known or SequenceMotions(seq, cfg.neighbours, cfg.deskew_rounds)
+            settings = (memo.neighbours, memo.deskew_rounds)
+            if memo.seq is not seq or settings != (cfg.neighbours, cfg.deskew_rounds):
+                raise ConfigError(
+                    "motions",
+                    "is a SequenceMotions of another sequence or other time_offset.neighbours / "
+                    "deskew_rounds",
+                )
+            motions, why = memo(picks)
             if motions is None:
                 return None, f"not modelled, points as measured: {why}", frames, none
         initial_s = cfg.initial_s if initial_s is None else initial_s
@@ -230,7 +239,7 @@ class Calibrator:
         seq: Sequence | FrameList[Frame],
         T_init: np.ndarray | None = None,
         seed: int | tuple[int, ...] = 0,
-        motions: Mapping[int, ScanMotion] | str | None = None,
+        motions: Mapping[int, ScanMotion] | SequenceMotions | str | None = None,
     ) -> CalibrationResult:
         """Calibrate ``seq`` (a :class:`Sequence` or a list of frames sharing one ``K``).
 
@@ -240,8 +249,9 @@ class Calibrator:
             T_init: ``(4, 4)`` initial ``T_cam_lidar``; ``None``: Stage 1 from motion.
             seed: of the correspondence sampling (an int or a tuple, as numpy seeds take).
             motions: the LiDAR's motion around each frame by position (from an INS, a simulator's
-                trajectory, or odometry run once for many calls), used for the time offset
-                instead of LiDAR odometry; or a string saying why there is none (nothing is tried).
+                trajectory), used for the time offset instead of LiDAR odometry; a
+                :class:`SequenceMotions` of ``seq`` (odometry run once for many calls); or a string
+                saying why there is none (nothing is tried).
         """
         start = time.perf_counter()
         if T_init is None:

@@ -10,7 +10,7 @@ import numpy as np
 from calib.data.types import Frame
 from calib.motion import ScanMotion, motions_from_poses
 
-__all__ = ["drift", "lidar_odometry", "scan_motions", "sensor_range"]
+__all__ = ["SequenceMotions", "drift", "lidar_odometry", "scan_motions", "sensor_range"]
 
 
 def sensor_range(scans: list[np.ndarray], percentile: float = 99.5) -> float:
@@ -153,6 +153,30 @@ def scan_motions(
             motions = motions_from_poses(poses, np.asarray(stamps), span=neighbours)
         found.update({first + k: m for k, m in enumerate(motions)})
     return [found[i] for i in positions], ""
+
+
+class SequenceMotions:
+    """:func:`scan_motions` of one sequence, remembered by position: the runs and supports of one
+    ``supportnet calibrate`` use the same sequence, and LiDAR odometry runs once around each scan.
+
+    Args:
+        seq, neighbours, deskew_rounds: as :func:`scan_motions`.
+    """
+
+    def __init__(self, seq: FrameList[Frame], neighbours: int = 3, deskew_rounds: int = 1) -> None:
+        self.seq, self.neighbours, self.deskew_rounds = seq, neighbours, deskew_rounds
+        self._found: dict[int, ScanMotion] = {}
+
+    def __call__(self, positions: Iterable[int]) -> tuple[list[ScanMotion] | None, str]:
+        """As :func:`scan_motions` on ``positions``, the motions found before reused."""
+        positions = [int(i) for i in positions]
+        missing = sorted({i for i in positions if i not in self._found})
+        if missing:
+            found, why = scan_motions(self.seq, missing, self.neighbours, deskew_rounds=self.deskew_rounds)
+            if found is None:
+                return None, why
+            self._found.update(zip(missing, found, strict=True))
+        return [self._found[i] for i in positions], ""
 
 
 def drift(estimate: np.ndarray, reference: np.ndarray) -> dict[str, float]:

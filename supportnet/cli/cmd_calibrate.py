@@ -29,10 +29,9 @@ from calib.data.io import write_image
 from calib.data.types import Frame
 from calib.errors import ConfigError, DataError
 from calib.geometry import perturb
-from calib.init.lidar_odometry import scan_motions
+from calib.init.lidar_odometry import SequenceMotions
 from calib.init.motion_init import initial_calibration, load_stage1_config
-from calib.motion import ScanMotion
-from calib.pipeline import Calibrator, select_frames
+from calib.pipeline import Calibrator
 from calib.projection import project_scan
 from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
@@ -228,40 +227,35 @@ def run_calibrate(
                         )
                     }
                 )
-        picks = select_frames(len(seq), config.frames)
-        frames = [seq[int(i)] for i in picks]
-        motions: dict[int, ScanMotion] | str = "time_offset.mode: off"
-        if config.time_offset.mode != "off":  # the LiDAR's motion around each frame, once for all runs
-            with console.status("LiDAR odometry around the frames (time offset)"):
-                found, why = scan_motions(
-                    seq, picks, config.time_offset.neighbours, deskew_rounds=config.time_offset.deskew_rounds
-                )
-            motions = dict(enumerate(found)) if found is not None else why
-    coarse = coarse_matcher(config)
-    calibrators = {
-        s.name: Calibrator(support=s, matcher=matcher, config=config, coarse_matcher=coarse) for s in supports
-    }
-    results: dict[str, list[CalibrationResult]] = {name: [] for name in calibrators}
-    with progress_bar("calibrate", console) as progress:
-        task = progress.add_task("calibrate", total=runs * len(supports))
-        for run in range(runs):
-            if init_kind == "perturb":
-                T_init = perturb(T_ref, *init_arg, torch.Generator().manual_seed(seed * 1000 + run))
-            else:
-                T_init = init_arg
-            for name, calibrator in calibrators.items():
-                # the same sampling draws for every support: a paired comparison
-                results[name].append(calibrator.calibrate(frames, T_init, seed=(seed, run), motions=motions))
-                progress.advance(task)
+        motions: SequenceMotions | str = "time_offset.mode: off"
+        if config.time_offset.mode != "off":  # the LiDAR's motion around the used frames, once for all runs
+            motions = SequenceMotions(seq, config.time_offset.neighbours, config.time_offset.deskew_rounds)
+        coarse = coarse_matcher(config)
+        calibrators = {
+            s.name: Calibrator(support=s, matcher=matcher, config=config, coarse_matcher=coarse)
+            for s in supports
+        }
+        results: dict[str, list[CalibrationResult]] = {name: [] for name in calibrators}
+        with progress_bar("calibrate", console) as progress:
+            task = progress.add_task("calibrate", total=runs * len(supports))
+            for run in range(runs):
+                if init_kind == "perturb":
+                    T_init = perturb(T_ref, *init_arg, torch.Generator().manual_seed(seed * 1000 + run))
+                else:
+                    T_init = init_arg
+                for name, calibrator in calibrators.items():
+                    # the same sampling draws for every support: a paired comparison
+                    results[name].append(calibrator.calibrate(seq, T_init, seed=(seed, run), motions=motions))
+                    progress.advance(task)
+        first = results[supports[0].name][0]
+        frames = [seq[i] for i in first.frame_indices]  # the first answer's, for its check and overlay
     checked = None
     if check:
         with console.status(f"Checking the answer on {len(frames)} frame(s) (no ground truth)"):
-            checked = _check_summary(
-                check_extrinsic(frames, results[supports[0].name][0].T_cam_lidar, seed=seed)
-            )
+            checked = _check_summary(check_extrinsic(frames, first.T_cam_lidar, seed=seed))
     by_support = {}
     for name, done in results.items():
-        run_dicts = [{"run": k, **_with_indices(r, picks)} for k, r in enumerate(done)]
+        run_dicts = [{"run": k, **r.to_dict()} for k, r in enumerate(done)]
         by_support[name] = {
             **run_dicts[0],
             "runs": run_dicts,
@@ -309,10 +303,3 @@ def run_calibrate(
                 write_image(tmp / f"support_{_slug(support.name)}.png", picture)
     console.print(_markdown(output), markup=False, highlight=False)
     return output
-
-
-def _with_indices(result: CalibrationResult, picks: np.ndarray) -> dict:
-    """``result.to_dict()`` with its frame positions mapped back to the sequence's."""
-    out = result.to_dict()
-    out["frame_indices"] = [int(picks[i]) for i in result.frame_indices]
-    return out

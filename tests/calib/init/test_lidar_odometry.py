@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
-from calib.init.lidar_odometry import drift, lidar_odometry, scan_motions, sensor_range
-from calib.motion import motions_from_poses
+import calib.init.lidar_odometry as lidar_odometry_module
+from calib.init.lidar_odometry import SequenceMotions, drift, lidar_odometry, scan_motions, sensor_range
+from calib.motion import ScanMotion, motions_from_poses
 from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
 
@@ -58,3 +59,23 @@ def test_deskewing_with_the_last_run_reads_a_short_distorted_run_s_speed():
         v = np.array([m.before[:3] for m in motions])
         errors[rounds] = float(np.median(np.linalg.norm(v - true_v, axis=1)))
     assert errors[1] < 0.5 * errors[0] and errors[1] < 0.3
+
+
+def test_sequence_motions_runs_odometry_once_around_each_scan(monkeypatch):
+    asked = []
+
+    def odometry(seq, positions, neighbours=3, max_gap_s=0.25, deskew_rounds=1):
+        asked.append(list(positions))
+        if 9 in positions:
+            return None, "frames 6-9 are not consecutive scans"
+        return [ScanMotion.still() for _ in positions], ""
+
+    monkeypatch.setattr(lidar_odometry_module, "scan_motions", odometry)
+    memo = SequenceMotions(list(range(10)), neighbours=3, deskew_rounds=1)
+    first, why = memo([4, 0])
+    assert why == "" and len(first) == 2 and asked == [[0, 4]]
+    again, _ = memo([0, 7, 4])
+    assert asked == [[0, 4], [7]]  # only the scan not asked before
+    assert again[0] is first[1] and again[2] is first[0]
+    assert memo([9, 0]) == (None, "frames 6-9 are not consecutive scans")
+    assert memo([0, 4])[0] == [first[1], first[0]] and asked[-1] == [9]

@@ -5,7 +5,9 @@ import pytest
 from rich.console import Console
 
 from calib.data import open_dataset
+from calib.data.types import Sequence
 from calib.errors import DataError
+from calib.init.lidar_odometry import SequenceMotions
 from calib.pipeline import Calibrator
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
 from calib.results import CalibrationResult
@@ -58,6 +60,25 @@ def test_calibrate_undoes_a_perturbation_with_uniform_and_offline_support(still_
     assert "| uniform |" in (tmp_path / "cal" / "summary.md").read_text()
     assert len(list((tmp_path / "cal").glob("overlay_*.png"))) == 2
     assert len(list((tmp_path / "cal").glob("support_*.png"))) == 1
+
+
+def test_the_runs_calibrate_the_sequence_and_share_its_odometry(still_vineyard, tmp_path, monkeypatch):
+    """The Calibrator gets the whole sequence (its own frame selection, and the scans around each
+    used frame for the moving-point test) and one SequenceMotions for every run and support."""
+    calls = []
+    calibrate = Calibrator.calibrate
+
+    def recording(self, seq, T_init, seed=0, motions=None):
+        calls.append((seq, motions))
+        return calibrate(self, seq, T_init, seed=seed, motions=motions)
+
+    monkeypatch.setattr(Calibrator, "calibrate", recording)
+    config = FAST.model_copy(update={"passes": 1})
+    result = run_calibrate(still_vineyard, "00", "uniform", "perturb:2,0.5", tmp_path / "cal", config, runs=2)
+    assert len(calls) == 2
+    assert all(isinstance(seq, Sequence) and len(seq) == 6 for seq, _ in calls)
+    assert isinstance(calls[0][1], SequenceMotions) and calls[1][1] is calls[0][1]
+    assert all(0 <= i < 6 for run in result["results"]["uniform"]["runs"] for i in run["frame_indices"])
 
 
 def test_init_from_a_file(still_vineyard, tmp_path):
