@@ -93,6 +93,23 @@ def _passes_entry(stage: str, passes: list[dict], **extra: float) -> dict:
     }
 
 
+class _Laps:
+    """Seconds per stage of one calibration: each call closes the stage run since the last."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self._start = self._last = time.perf_counter()
+
+    def __call__(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.seconds[stage] = now - self._last
+        self._last = now
+
+    @property
+    def total_s(self) -> float:
+        return time.perf_counter() - self._start
+
+
 class Calibrator:
     """Calibrate a sequence: Stage 1 (or a given ``T_init``), then Stages 2–4 in passes.
 
@@ -253,18 +270,21 @@ class Calibrator:
                 :class:`SequenceMotions` of ``seq`` (odometry run once for many calls); or a string
                 saying why there is none (nothing is tried).
         """
-        start = time.perf_counter()
+        lap = _Laps()
         if T_init is None:
             if not isinstance(seq, Sequence):
                 raise DataError("T_init", "Stage 1 needs a Sequence (with time stamps); give T_init")
             stage1 = self._stage1_result(seq)  # Stage 1
             T_init, stage1_offset = stage1.T_cam_lidar, stage1.time_offset_s
+            lap("stage 1")
         else:
             stage1_offset = None
         T_init = _checked_extrinsic(T_init, "T_init")
         picks, loaded = self._pick_frames(seq, T_init)
         frames = [loaded[i] if i in loaded else seq[i] for i in picks]
+        lap("frames")
         timing, timing_note, frames, moving = self._scan_timing(seq, picks, frames, motions, stage1_offset)
+        lap("motion and moving points")
         # the coarse stages see the points at the camera's time under the initial δt
         seen = frames if timing is None else timing.frames_at(frames, timing.offset_s)
         coarse_starts: dict[str, np.ndarray] = {}  # other starts for the passes, by origin
@@ -274,6 +294,7 @@ class Calibrator:
                 search = global_search(seen, T_init, self.config.coarse, kind)
                 coarse_starts[f"global ({kind})"] = search.T_cam_lidar
                 coarse += [{"stage": "global", "score": kind, **level} for level in search.levels]
+            lap("global")
         if self.config.contour.enabled:  # then the contour score over all six parameters at once
             refined = {}
             for origin, T_start in (coarse_starts or {"initial": T_init}).items():
@@ -281,6 +302,7 @@ class Calibrator:
                 coarse += [{"stage": "contour", "from": origin, **level} for level in climb.levels]
                 refined[f"{origin}, contour"] = climb.T_cam_lidar
             coarse_starts = refined
+            lap("contour")
         rng = np.random.default_rng(seed)
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
         if self.config.flow_coarse_passes:  # the learned matcher's passes from the initial extrinsic
@@ -291,6 +313,7 @@ class Calibrator:
             )
             coarse_starts["flow"] = flow.T_cam_lidar
             coarse.append(_passes_entry("flow", flow.passes, frames=len(some)))
+            lap("flow")
         T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
         pyramid = self._pyramid_focals(frames)
         if pyramid and alternatives:
@@ -306,6 +329,7 @@ class Calibrator:
                 some, T_start, matcher, self.support, one_pass, rng, alternatives, some_timing
             )
             T_start, alternatives = probed.T_cam_lidar, []
+            lap("probe")
         restarted = None  # the passes that ran the δt restarts, where a pyramid level did
         timed_from = self.config.time_offset.from_px
         for focal in pyramid:  # the edge matcher coarse to fine, δt held until `time_offset.from_px`
@@ -319,6 +343,7 @@ class Calibrator:
                 restarted = restarted or level
                 timing = replace(timing, offset_s=level.time_offset_s, restarts_s=())
             coarse.append(_passes_entry("pyramid", level.passes, working_focal_px=focal))
+            lap(f"pyramid {focal:g} px")
         finest, finest_config = self._level(fine=True)
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes
             frames,
@@ -330,6 +355,7 @@ class Calibrator:
             alternatives=alternatives,
             timing=timing,
         )
+        lap("finest")
         probed = probed if probed is not None else passes
         if timing is not None and not timing_note:
             timing_note = (
@@ -376,7 +402,7 @@ class Calibrator:
             support=self.support.name,
             frame_indices=[int(i) for i in picks],
             correspondences=passes.correspondences,
-            runtime_s=time.perf_counter() - start,
+            runtime_s=lap.total_s,
             passes=passes.passes,
             coarse=coarse,
             weak_directions=weak,
@@ -385,6 +411,7 @@ class Calibrator:
             time_offset_note=timing_note,
             time_offset_reference_s=_stamp_offset(frames),
             moving_points=moving,
+            stage_seconds=lap.seconds,
         )
 
 

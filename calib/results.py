@@ -57,6 +57,8 @@ class CalibrationResult:
         time_offset_note: how ``δt`` was found, or why it was held.
         time_offset_reference_s: the frames' camera stamp minus LiDAR stamp, where known.
         moving_points: per used frame, the points left out as moving (:mod:`calib.moving`).
+        stage_seconds: seconds per stage, in the order they ran (``frames``, ``global``,
+            ``pyramid 90 px``, ..., ``finest``).
     """
 
     T_cam_lidar: np.ndarray
@@ -75,6 +77,7 @@ class CalibrationResult:
     time_offset_note: str = ""
     time_offset_reference_s: float | None = None
     moving_points: list[int] = field(default_factory=list)
+    stage_seconds: dict[str, float] = field(default_factory=dict)
 
     @property
     def error(self) -> CalibrationError | None:
@@ -110,6 +113,7 @@ class CalibrationResult:
             "time_offset_note": self.time_offset_note,
             "time_offset_reference_s": self.time_offset_reference_s,
             "moving_points": list(self.moving_points),
+            "stage_seconds": dict(self.stage_seconds),
             "support": self.support,
             "frames": len(self.frame_indices),
             "frame_indices": list(self.frame_indices),

@@ -260,6 +260,12 @@ def test_flow_coarse_passes_add_a_start_from_the_coarse_matcher(frames):
         "flow",
     }
     assert result.error.translation_cm < 2.5 and result.error.rotation_deg < 0.4
+    # the seconds of each stage, in the order they ran, within the calibration's own
+    stages = list(result.stage_seconds)
+    assert stages == ["frames", "motion and moving points", "global", "flow", "finest"]
+    assert all(s >= 0 for s in result.stage_seconds.values())
+    assert sum(result.stage_seconds.values()) <= result.runtime_s
+    assert result.to_dict()["stage_seconds"] == result.stage_seconds
 
 
 def test_flow_coarse_frames_run_those_passes_on_a_subset(frames):
