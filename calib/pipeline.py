@@ -14,7 +14,7 @@ window on a stream and fuses the windows into a running estimate with a drift al
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from collections.abc import Sequence as FrameList
 from dataclasses import replace
 from functools import partial
@@ -94,16 +94,20 @@ def _passes_entry(stage: str, passes: list[dict], **extra: float) -> dict:
 
 
 class _Laps:
-    """Seconds per stage of one calibration: each call closes the stage run since the last."""
+    """Seconds per stage of one calibration: each call closes the stage run since the last (and
+    tells ``on_stage`` its name and seconds)."""
 
-    def __init__(self) -> None:
+    def __init__(self, on_stage: Callable[[str, float], None] | None = None) -> None:
         self.seconds: dict[str, float] = {}
+        self._on_stage = on_stage
         self._start = self._last = time.perf_counter()
 
     def __call__(self, stage: str) -> None:
         now = time.perf_counter()
         self.seconds[stage] = now - self._last
         self._last = now
+        if self._on_stage is not None:
+            self._on_stage(stage, self.seconds[stage])
 
     @property
     def total_s(self) -> float:
@@ -257,6 +261,7 @@ class Calibrator:
         T_init: np.ndarray | None = None,
         seed: int | tuple[int, ...] = 0,
         motions: Mapping[int, ScanMotion] | SequenceMotions | str | None = None,
+        on_stage: Callable[[str, float], None] | None = None,
     ) -> CalibrationResult:
         """Calibrate ``seq`` (a :class:`Sequence` or a list of frames sharing one ``K``).
 
@@ -269,8 +274,9 @@ class Calibrator:
                 trajectory), used for the time offset instead of LiDAR odometry; a
                 :class:`SequenceMotions` of ``seq`` (odometry run once for many calls); or a string
                 saying why there is none (nothing is tried).
+            on_stage: called with each stage's name and seconds as it ends (a progress display).
         """
-        lap = _Laps()
+        lap = _Laps(on_stage)
         if T_init is None:
             if not isinstance(seq, Sequence):
                 raise DataError("T_init", "Stage 1 needs a Sequence (with time stamps); give T_init")

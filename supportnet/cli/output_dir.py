@@ -36,7 +36,16 @@ from pathlib import Path
 import yaml
 from pydantic import BaseModel
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    ProgressColumn,
+    Task,
+    TextColumn,
+    TimeRemainingColumn,
+)
+from rich.text import Text
 
 from calib.errors import DataError
 
@@ -478,7 +487,15 @@ def resolved_config(config: BaseModel) -> str:
     return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
 
 
+class _Stage(ProgressColumn):
+    """The task's ``stage`` field (what a long item is doing now), where it has one."""
+
+    def render(self, task: Task) -> Text:
+        return Text(str(task.fields.get("stage", "")), style="dim")
+
+
 def progress_bar(label: str, console: Console) -> Progress:
-    """A transient bar ``label ━━━ done/total time-left`` on ``console`` (stderr for commands)."""
-    columns = (TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    """A transient bar ``label ━━━ done/total time-left stage`` on ``console`` (stderr for
+    commands); ``progress.update(task, stage=...)`` says what the current item is doing."""
+    columns = (TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), _Stage())
     return Progress(*columns, console=console, transient=True)

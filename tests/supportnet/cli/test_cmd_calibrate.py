@@ -64,13 +64,24 @@ def test_calibrate_undoes_a_perturbation_with_uniform_and_offline_support(still_
 
 def test_the_runs_calibrate_the_sequence_and_share_its_odometry(still_vineyard, tmp_path, monkeypatch):
     """The Calibrator gets the whole sequence (its own frame selection, and the scans around each
-    used frame for the moving-point test) and one SequenceMotions for every run and support."""
+    used frame for the moving-point test), one SequenceMotions for every run and support, and
+    the progress bar hears of each stage as it ends."""
     calls = []
     calibrate = Calibrator.calibrate
 
-    def recording(self, seq, T_init, seed=0, motions=None):
+    def recording(self, seq, T_init, seed=0, motions=None, on_stage=None):
         calls.append((seq, motions))
-        return calibrate(self, seq, T_init, seed=seed, motions=motions)
+        stages = []
+        result = calibrate(
+            self,
+            seq,
+            T_init,
+            seed=seed,
+            motions=motions,
+            on_stage=lambda *a: stages.append(a) or on_stage(*a),
+        )
+        assert [stage for stage, _ in stages] == list(result.stage_seconds)  # the progress bar's
+        return result
 
     monkeypatch.setattr(Calibrator, "calibrate", recording)
     config = FAST.model_copy(update={"passes": 1})
