@@ -253,6 +253,8 @@ def one_run(
         converged=converged(result.passes, config),
         raised=None,
         passes=len(result.passes),
+        start_kept=next((c["kept"] for c in result.coarse if c["stage"] == "choice"), None),
+        stage_seconds=result.stage_seconds,
     )
     return run
 
