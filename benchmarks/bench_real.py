@@ -91,6 +91,10 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25"
     ),  # the packaged calibrate.yaml (PACKAGED)
+    "global-flowcoarse3-fp4-probe4-pyramid-fullres-iwfine360": (
+        "global+4 flow passes on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25"
+    ),  # the packaged config with four flow passes instead of two
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -99,6 +103,8 @@ PACKAGED = "global-flowcoarse3-probe4-pyramid-fullres-iwfine360"
 """The variant that is the packaged ``calibrate.yaml`` (the default of ``--variants``)."""
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""
+FLOW_COARSE_PASSES_MORE = 4
+"""The ``fp4`` variants' passes of the learned matcher."""
 FLOW_COARSE_FRAMES = 3
 """The ``flowcoarse3`` variants' frames for those passes (``flow_coarse_frames``)."""
 PROBE_FRAMES = 4
@@ -199,7 +205,9 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "time_offset": base.time_offset.model_copy(update={"from_px": timed_from}),
                 "edge": edge,
                 "matcher": "flow" if "flow" in stages else "edge",
-                "flow_coarse_passes": FLOW_COARSE_PASSES if flow_coarse else 0,
+                "flow_coarse_passes": (FLOW_COARSE_PASSES_MORE if "fp4" in stages else FLOW_COARSE_PASSES)
+                if flow_coarse
+                else 0,
                 "flow_coarse_frames": FLOW_COARSE_FRAMES if "flowcoarse3" in stages else None,
                 "probe_frames": PROBE_FRAMES if "probe4" in stages else None,
             }
