@@ -9,6 +9,7 @@ import torch
 
 from calib.errors import ConfigError, DataError
 from calib.geometry import calibration_error, perturb
+from calib.init.lidar_odometry import SequenceMotions
 from calib.match.edge_matcher import EdgeMatcher
 from calib.pipeline import Calibrator, OnlineCalibrator, select_frames
 from calib.refine.passes import CalibrateConfig
@@ -302,6 +303,17 @@ def test_without_reference_the_error_is_none(frames):
     result = Calibrator(config=FAST).calibrate(frames, frames[0].calibration.T_cam_lidar)
     bare = CalibrationResult(**{**result.__dict__, "reference_T_cam_lidar": None})
     assert bare.error is None and bare.to_dict()["error"] is None
+
+
+def test_motions_of_another_sequence_or_other_settings_are_refused(frames):
+    T = frames[0].calibration.T_cam_lidar
+    calibrator = Calibrator(config=FAST)  # δt estimated: the motions are asked for
+    with pytest.raises(ConfigError, match="SequenceMotions of another sequence"):
+        calibrator.calibrate(frames, T, motions=SequenceMotions(list(frames)))
+    with pytest.raises(ConfigError, match="neighbours"):
+        calibrator.calibrate(
+            frames, T, motions=SequenceMotions(frames, neighbours=FAST.time_offset.neighbours + 1)
+        )
 
 
 def test_bad_extrinsics_and_learned_matchers_are_refused(frames):
