@@ -245,12 +245,14 @@ def run_calibrate(
                     T_init = init_arg
                 for name, calibrator in calibrators.items():
 
-                    def done(stage: str, seconds: float, item: str = f"run {run + 1}, {name}") -> None:
+                    def stage_done(stage: str, seconds: float, item: str = f"run {run + 1}, {name}") -> None:
                         progress.update(task, stage=f"{item}: {stage} done ({seconds:.0f} s)")
 
                     # the same sampling draws for every support: a paired comparison
                     results[name].append(
-                        calibrator.calibrate(seq, T_init, seed=(seed, run), motions=motions, on_stage=done)
+                        calibrator.calibrate(
+                            seq, T_init, seed=(seed, run), motions=motions, on_stage=stage_done
+                        )
                     )
                     progress.advance(task)
         first = results[supports[0].name][0]
