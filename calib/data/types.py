@@ -503,9 +503,14 @@ def paired_timestamps(
     problems: list[str] | None = None,
 ) -> np.ndarray:
     """Time stamps of the paired ``images`` from a file holding one per image file (sorted
-    order, ``all_images``); 10 Hz assumed (and noted) when the file is absent. NaN and
-    non-increasing stamps are appended to ``problems`` (see :func:`time_problems`)."""
+    order, ``all_images``); 10 Hz assumed (and noted) when the file is absent, from the files'
+    numbers where every name is one (KITTI's ``0000000019.png`` is frame 19: frames 1, 6, 19 and
+    185 of a drive are not consecutive scans), else from their order. NaN and non-increasing
+    stamps are appended to ``problems`` (see :func:`time_problems`)."""
     if not path.is_file():
+        if images and all(p.stem.isdigit() for p in images):
+            notes.append(f"{path}: no time stamps; 10 Hz assumed from the file numbers")
+            return np.array([int(p.stem) for p in images], np.float64) / 10.0
         return assumed_timestamps(len(images), notes, str(path))
     stamps = parse(path)
     if len(stamps) != len(all_images):

@@ -21,6 +21,7 @@ from calib.data.io import (
 )
 from calib.data.kitti_odometry import write_kitti_odometry
 from calib.data.rosbag import BagTopics, write_bag
+from calib.data.types import paired_timestamps
 from calib.errors import DataError
 from calib.geometry import perturb
 from tests.conftest import KITTI_K, kitti_like_extrinsic, make_frames
@@ -163,6 +164,17 @@ def test_kitti_raw_without_timestamps_assumes_10hz(tmp_path, frames):
     seq = open_dataset(date)
     assert any("10 Hz assumed" in n for n in seq.notes)
     np.testing.assert_allclose(seq.timestamps, [0.0, 0.1, 0.2])
+    # from the file numbers: frames 0 and 2 of a drive, without 1, are 0.2 s apart
+    for path in date.rglob("0000000001.*"):  # its image and its scan
+        path.unlink()
+    np.testing.assert_allclose(open_dataset(date).timestamps, [0.0, 0.2])
+
+
+def test_stamps_assumed_from_order_where_names_are_not_numbers(tmp_path):
+    notes = []
+    images = [tmp_path / "b.png", tmp_path / "a7.png"]
+    np.testing.assert_allclose(paired_timestamps(tmp_path / "none.txt", images, images, notes), [0.0, 0.1])
+    assert notes == [f"{tmp_path / 'none.txt'}: no time stamps; 10 Hz assumed"]
 
 
 def test_kitti_object_transform_matches_devkit_formula(tmp_path, frames):
