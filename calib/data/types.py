@@ -462,10 +462,17 @@ def optional_paths(folder: Path, stems: list[str], suffix: str) -> list[Path | N
     return [(folder / f"{s}{suffix}") if (folder / f"{s}{suffix}").is_file() else None for s in stems]
 
 
-def assumed_timestamps(n: int, notes: list[str], what: str, rate_hz: float = 10.0) -> np.ndarray:
-    """Evenly spaced times for a format without time stamps, noting the assumption."""
-    notes.append(f"{what}: no time stamps; {rate_hz:g} Hz assumed")
-    return np.arange(n, dtype=np.float64) / rate_hz
+def assumed_timestamps(
+    n: int, notes: list[str], what: str, rate_hz: float = 10.0, numbers: list[int] | None = None
+) -> np.ndarray:
+    """Times at ``rate_hz`` for a format without time stamps, noting the assumption: of the
+    frames' ``numbers`` where given (frames 1, 6, 19 and 185 of a drive are not consecutive
+    scans), else of their order."""
+    if numbers is None:
+        notes.append(f"{what}: no time stamps; {rate_hz:g} Hz assumed")
+        return np.arange(n, dtype=np.float64) / rate_hz
+    notes.append(f"{what}: no time stamps; {rate_hz:g} Hz assumed from the file numbers")
+    return np.asarray(numbers, np.float64) / rate_hz
 
 
 def read_seconds(path: Path) -> np.ndarray:
@@ -508,10 +515,9 @@ def paired_timestamps(
     185 of a drive are not consecutive scans), else from their order. NaN and non-increasing
     stamps are appended to ``problems`` (see :func:`time_problems`)."""
     if not path.is_file():
-        if images and all(p.stem.isdigit() for p in images):
-            notes.append(f"{path}: no time stamps; 10 Hz assumed from the file numbers")
-            return np.array([int(p.stem) for p in images], np.float64) / 10.0
-        return assumed_timestamps(len(images), notes, str(path))
+        numbered = bool(images) and all(p.stem.isdigit() for p in images)
+        numbers = [int(p.stem) for p in images] if numbered else None
+        return assumed_timestamps(len(images), notes, str(path), numbers=numbers)
     stamps = parse(path)
     if len(stamps) != len(all_images):
         raise DataError(path, f"holds {len(stamps)} time stamps for {len(all_images)} images")
