@@ -42,6 +42,7 @@ from supportnet.report.demo_page import (
     build_demo_page,
     caption_colour_problems,
     class_chart_figure,
+    drive_speed,
     projection_figure,
     support_figure,
     write_demo_page,
@@ -157,7 +158,9 @@ def run_pipeline(world: str, out: Path, frames: int, runs: int, console: Console
             runs,
             console=console,
         )
-    return WorldRun(world, out.name, SEQUENCE, DEMO_SEED, frames, stage1, stage4, classes)
+        with open_dataset(data, sequence=SEQUENCE) as seq:
+            speed = drive_speed(seq.poses, seq.timestamps)
+    return WorldRun(world, out.name, SEQUENCE, DEMO_SEED, frames, stage1, stage4, classes, speed_mps=speed)
 
 
 def world_figures(root: Path, world: WorldRun) -> None:

@@ -235,6 +235,7 @@ class WorldRun:
         classes: ``classes/classes.json``'s content.
         figures: by key: ``classes``, ``trajectories``, ``support:<name>``, ``overlay:<name>``.
         map_agreement: Pearson r between the offline and the predicted map on the first frame.
+        speed_mps: the drive's median speed (from the sequence's ground-truth poses), or ``None``.
     """
 
     world: str
@@ -247,6 +248,7 @@ class WorldRun:
     classes: dict
     figures: dict[str, Figure] = field(default_factory=dict)
     map_agreement: float | None = None
+    speed_mps: float | None = None
 
     @property
     def label(self) -> str:
@@ -332,7 +334,7 @@ def _stage4_comments(world: WorldRun) -> list[str]:
         return []
     base = results["uniform"]
     bt, br = base["summary"]["translation_cm"], base["summary"]["rotation_deg"]
-    out = [c for c in (_translation_floor(world),) if c]
+    out = [c for c in (_held_time_offset(world), _translation_floor(world)) if c]
     for name, r in results.items():
         if name == "uniform" or not r.get("summary"):
             continue
@@ -368,6 +370,49 @@ def _stage4_comments(world: WorldRun) -> list[str]:
         sentence += _likely_reason(world, name, worse_t, worse_r)
         out.append(sentence)
     return out
+
+
+def _held_time_offset(world: WorldRun) -> str:
+    """Where the time offset was held (the drive did not vary its motion enough to tell it from a
+    translation) away from the world's own: the bias that leaves along the motion, which every
+    support shares and no sampling removes."""
+    base = world.stage4["results"]["uniform"]
+    held, truth = base.get("time_offset_s"), base.get("time_offset_reference_s")
+    if held is None or truth is None or base.get("time_offset_std_s") is not None:
+        return ""
+    gap_ms = 1e3 * abs(truth - held)
+    if gap_ms < 1.0:
+        return ""
+    note = base.get("time_offset_note") or ""
+    why = note.split(": ", 1)[1] if note.startswith("held at") and ": " in note else note
+    when = "after" if truth > 0 else "before"
+    text = (
+        f"On {world.world}, the time offset δt was held at {1e3 * held:g} ms while this world's camera "
+        f"fires {1e3 * abs(truth):g} ms {when} the LiDAR" + (f"; {why}" if why else "") + ". "
+    )
+    bias = (
+        f"Each scan thus sits {gap_ms:.0f} ms of motion, {world.speed_mps * gap_ms / 10:.1f} cm at the "
+        f"drive's {world.speed_mps:.1f} m/s, from where the camera saw it: a bias along the motion that "
+        "every support shares and no sampling removes"
+        if world.speed_mps
+        else "Every support shares the bias this leaves along the motion, which no sampling removes"
+    )
+    final = base["summary"]["translation_cm"]["median"]
+    return (
+        text + bias + f" (uniform sampling ends at {final:.2f} cm median). A drive that turns or changes "
+        "speed lets δt be estimated."
+    )
+
+
+def drive_speed(poses: np.ndarray | None, stamps: np.ndarray) -> float | None:
+    """The median speed ``(m/s)`` between consecutive ground-truth ``poses (F, 4, 4)`` at
+    ``stamps (F,)`` seconds; ``None`` without poses or two stamps apart."""
+    if poses is None or len(poses) < 2:
+        return None
+    dt = np.diff(np.asarray(stamps, np.float64))
+    steps = np.linalg.norm(np.diff(np.asarray(poses)[:, :3, 3], axis=0), axis=1)
+    ok = dt > 0
+    return float(np.median(steps[ok] / dt[ok])) if ok.any() else None
 
 
 def _translation_floor(world: WorldRun) -> str:

@@ -20,6 +20,7 @@ from supportnet.report.demo_page import (
     build_demo_page,
     caption_colour_problems,
     class_chart_figure,
+    drive_speed,
     projection_figure,
     support_figure,
     write_demo_page,
@@ -332,3 +333,34 @@ def test_stage4_ending_worse_than_it_started_is_said_so():
         "from 10.0 cm to 54.0–101.0 cm (rotation from 2.00° to 2.75–3.40°)" in md
     )
     assert "likely a false minimum" in md and "removes only" not in md
+
+
+def test_a_held_time_offset_away_from_the_worlds_is_named_as_the_floor():
+    classes, _ = _classes()
+    uniform = _runs([2.5, 2.6], [0.1, 0.1])
+    uniform.update(
+        time_offset_s=0.0,
+        time_offset_std_s=None,
+        time_offset_reference_s=0.02,
+        time_offset_note="held at 0 s: the frames' motion varies too little (speed spread 0.05 m/s)",
+    )
+    stage4 = {"results": {"uniform": uniform, "onnx": _runs([2.9, 2.9], [0.3, 0.3])}}
+    world = WorldRun("vineyard", "vineyard", "09", 9, 4, {"refused": "none"}, stage4, classes, speed_mps=1.2)
+    md = to_markdown(build_demo_page([world], [], runs=2, seconds=1.0))
+    assert (
+        "the time offset δt was held at 0 ms while this world's camera fires 20 ms after the LiDAR; the "
+        "frames' motion varies too little (speed spread 0.05 m/s). Each scan thus sits 20 ms of motion, "
+        "2.4 cm at the drive's 1.2 m/s" in md
+    )
+    assert "(uniform sampling ends at 2.55 cm median)" in md
+    uniform.update(time_offset_s=0.0195, time_offset_std_s=0.0002)  # estimated: no floor to name
+    md = to_markdown(build_demo_page([world], [], runs=2, seconds=1.0))
+    assert "was held at" not in md
+
+
+def test_drive_speed_is_the_median_step_over_its_time():
+    poses = np.repeat(np.eye(4)[None], 4, axis=0)
+    poses[:, 0, 3] = [0.0, 0.12, 0.24, 0.5]  # 1.2 m/s twice, then a 2.6 m/s outlier
+    assert drive_speed(poses, np.array([0.0, 0.1, 0.2, 0.3])) == pytest.approx(1.2)
+    assert drive_speed(None, np.zeros(4)) is None
+    assert drive_speed(poses[:1], np.zeros(1)) is None
