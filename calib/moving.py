@@ -43,7 +43,7 @@ from calib.data.types import Frame
 from calib.features import ring_spacing_deg
 from calib.motion import ScanMotion
 
-__all__ = ["MovingConfig", "moving_points", "seen_through", "without_moving"]
+__all__ = ["MovingConfig", "moving_points", "seen_through", "shadowed", "without_moving"]
 
 
 class MovingConfig(BaseModel):
@@ -70,6 +70,14 @@ class MovingConfig(BaseModel):
         0.3, gt=0, le=1, description="a cluster of points with this share convicted is moving as a whole"
     )
     voxel_m: PositiveFloat = Field(0.3, description="points in touching voxels of this size are one cluster")
+    shadow_deg: float = Field(
+        0.0,
+        ge=0,
+        description="also leave out the points within this angle of a moving cluster (seen from the "
+        "LiDAR) that lie as far as it or farther: what the camera, at another time, sees the thing cover "
+        "(0: none)",
+    )
+    shadow_slack_m: float = Field(1.0, ge=0, description="... from this much nearer than the cluster on")
 
 
 def seen_through(
@@ -128,6 +136,40 @@ def moving_points(
         convicted = np.bincount(cluster[counted], weights=through[counted], minlength=len(size))
         moving[counted] = (convicted >= config.object_share * size)[cluster[counted]]
     return moving
+
+
+def shadowed(
+    points_lidar: np.ndarray, moving: np.ndarray, config: MovingConfig = MovingConfig()
+) -> np.ndarray:
+    """Which static points lie in a moving thing's shadow: within ``config.shadow_deg`` of its
+    points (azimuth and elevation from the LiDAR) and no more than ``config.shadow_slack_m``
+    nearer than the nearest of them. The camera sees a moving thing where it is at the camera's
+    time, not at each point's time within the sweep (a car at 10 m/s seen 25 ms apart has moved
+    25 cm), and with it covers the background the LiDAR saw beside it.
+
+    Args:
+        points_lidar: ``(N, 3+)`` the scan. moving: ``(N,)`` bool, :func:`moving_points`.
+
+    Returns:
+        ``(N,)`` bool, ``False`` on the moving points themselves.
+    """
+    xyz = np.asarray(points_lidar, np.float64)[:, :3]
+    shadow = np.zeros(len(xyz), bool)
+    if config.shadow_deg <= 0 or not moving.any():
+        return shadow
+    spacing = max(ring_spacing_deg(xyz), 0.1)
+    bins = _Bins(np.radians(config.azimuth_bin_deg), np.radians(spacing), xyz)
+    here, r = bins.of(xyz)
+    nearest = np.full(bins.size, np.inf)
+    on = moving & (here >= 0)
+    np.minimum.at(nearest, here[on], r[on])
+    size = (
+        2 * int(np.ceil(config.shadow_deg / spacing)) + 1,
+        2 * int(np.ceil(config.shadow_deg / config.azimuth_bin_deg)) + 1,
+    )
+    near = ndimage.minimum_filter(nearest.reshape(bins.shape), size=size, mode=("nearest", "wrap")).ravel()
+    at = near[np.maximum(here, 0)]
+    return (here >= 0) & ~moving & np.isfinite(at) & (r >= at - config.shadow_slack_m)
 
 
 def _clusters(xyz: np.ndarray, voxel_m: float, cell_m: float = 2.0, clearance_m: float = 0.25) -> np.ndarray:
@@ -223,6 +265,7 @@ def without_moving(
             T = motion.pose(t_j - t_i)  # T_Li_Lj: the LiDAR at t_j in its frame at t_i
             others.append(points @ T[:3, :3].T + T[:3, 3])
         moving = moving_points(stamp, others, config)
+        moving |= shadowed(stamp, moving, config)
         kept.append(_subset(frame, ~moving) if moving.any() else frame)
         lost.append(moving)
     return kept, lost

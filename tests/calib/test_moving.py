@@ -5,7 +5,7 @@ import pytest
 
 from calib.data.types import Calibration, Frame
 from calib.motion import ScanMotion
-from calib.moving import MovingConfig, moving_points, seen_through, without_moving
+from calib.moving import MovingConfig, moving_points, seen_through, shadowed, without_moving
 
 
 def _scan(origin=(0.0, 0.0), boxes=(), step_deg=0.2) -> tuple[np.ndarray, np.ndarray]:
@@ -85,6 +85,30 @@ def test_an_object_half_seen_through_moves_as_a_whole():
     object_ = box & (points[:, 2] > ABOVE_GROUND)
     assert moving_points(points, [nudged])[object_].all()  # the cluster's verdict
     assert not moving_points(points, [nudged], MovingConfig(object_share=0.9))[object_].any()
+
+
+def _directions_deg(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return (
+        np.degrees(np.arctan2(points[:, 1], points[:, 0])),
+        np.degrees(np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1]))),
+    )
+
+
+def test_the_shadow_takes_what_lies_beside_and_behind_a_moving_thing():
+    # a box 5-7 m ahead (its near face spans azimuths within ±11.3°) before the 15 m wall, and a
+    # post 3 m ahead, nearer than the box, at azimuths -12.5° to -14.5°
+    points, box = _scan(boxes=[(6.0, 0.0, 1.0), (3.0, -0.72, 0.05)])
+    azimuth, elevation = _directions_deg(points)
+    post = box & (azimuth < -12.0)
+    box &= ~post
+    assert not shadowed(points, box).any()  # shadow_deg 0: none (the packaged default)
+    shadow = shadowed(points, box, MovingConfig(shadow_deg=2.0))
+    assert not shadow[box].any() and not shadow[post].any()  # the thing itself, and what is nearer
+    wall = np.linalg.norm(points[:, :2], axis=1) > 14.0
+    beside = wall & (azimuth > 11.8) & (azimuth < 12.8)
+    far = wall & (np.abs(azimuth) > 14.5)
+    assert beside.sum() > 20 and shadow[beside].all()  # 0.5-1.5° past the box's edge: within 2°
+    assert far.sum() > 1000 and not shadow[far].any()  # 3.2° past it or more: outside
 
 
 def _frames(box_y: list[float]) -> list[Frame]:
