@@ -101,7 +101,7 @@ def test_the_shadow_takes_what_lies_beside_and_behind_a_moving_thing():
     azimuth, elevation = _directions_deg(points)
     post = box & (azimuth < -12.0)
     box &= ~post
-    assert not shadowed(points, box).any()  # shadow_deg 0: none (the packaged default)
+    assert not shadowed(points, box, MovingConfig(shadow_deg=0.0)).any()
     shadow = shadowed(points, box, MovingConfig(shadow_deg=2.0))
     assert not shadow[box].any() and not shadow[post].any()  # the thing itself, and what is nearer
     wall = np.linalg.norm(points[:, :2], axis=1) > 14.0
@@ -134,7 +134,7 @@ def _frames(box_y: list[float]) -> list[Frame]:
 
 def test_without_moving_drops_them_from_the_frames_that_have_scans_around():
     seq = _frames([-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0])  # the box drives 10 m/s across
-    config = MovingConfig(scans_apart=3)
+    config = MovingConfig(scans_apart=3, shadow_deg=0.0)  # the detector alone
     picks = [3, 0]
     frames = [seq[i] for i in picks]
     stamps = [f.points[:, :3].astype(np.float64) for f in frames]  # a still sensor: as measured
@@ -147,6 +147,17 @@ def test_without_moving_drops_them_from_the_frames_that_have_scans_around():
     # frame 0 has scan 3 after it (its box 3 m away): it loses its box too
     box = seq[0].labels == 1
     assert (box & (seq[0].points[:, 2] > ABOVE_GROUND)).sum() <= lost[1] <= box.sum()
+    # the packaged shadow adds the top of the box's foot (in the ground band no cluster holds)
+    # and static points beside it, within a degree of its azimuths
+    _, shadowed_masks = without_moving(
+        seq, picks, frames, stamps, [ScanMotion.still()] * 2, MovingConfig(scans_apart=3), lambda f: None
+    )
+    extra = shadowed_masks[0] & ~masks[0]
+    azimuth = np.degrees(np.arctan2(seq[3].points[:, 1], seq[3].points[:, 0]))
+    assert (shadowed_masks[0] >= masks[0]).all() and extra.sum() > 50
+    box = seq[3].labels == 1
+    assert (extra & box).sum() > 50 and (extra & ~box).sum() > 50
+    assert (np.abs(azimuth[extra]) < 11.3 + 1.0).all()
     # without stamps a frame keeps its points
     unstamped = [replace(f, timestamp=None) for f in seq]
     stamps = [unstamped[3].points[:, :3].astype(np.float64)]
@@ -174,6 +185,9 @@ def test_the_calibrator_leaves_them_out_where_it_estimates_the_time_offset(monke
             "finest_focal_px": 100.0,
             "pyramid_focals_px": (),
             "coarse": base.coarse.model_copy(update={"enabled": False}),
+            "outliers": base.outliers.model_copy(
+                update={"moving": base.outliers.moving.model_copy(update={"shadow_deg": 0.0})}
+            ),
             "time_offset": base.time_offset.model_copy(
                 update={"mode": mode, "min_speed_spread_mps": 1e-9, "restarts_ms": ()}
             ),
