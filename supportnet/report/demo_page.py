@@ -384,7 +384,9 @@ def _held_time_offset(world: WorldRun) -> str:
     if gap_ms < 1.0:
         return ""
     note = base.get("time_offset_note") or ""
-    why = note.split(": ", 1)[1] if note.startswith("held at") and ": " in note else note
+    said = re.match(r"held at [-+0-9.e]+ s: (.*)", note)  # held where the motion could not tell
+    fixed = "the config fixes it (time_offset.mode: fixed)" if "mode: fixed" in note else note
+    why = said.group(1) if said else fixed
     when = "after" if truth > 0 else "before"
     text = (
         f"On {world.world}, the time offset δt was held at {1e3 * held:g} ms while this world's camera "
@@ -406,7 +408,7 @@ def _held_time_offset(world: WorldRun) -> str:
 
 def drive_speed(poses: np.ndarray | None, stamps: np.ndarray) -> float | None:
     """The median speed ``(m/s)`` between consecutive ground-truth ``poses (F, 4, 4)`` at
-    ``stamps (F,)`` seconds; ``None`` without poses or two stamps apart."""
+    ``stamps (F,)`` seconds; ``None`` without poses, or without two distinct stamps."""
     if poses is None or len(poses) < 2:
         return None
     dt = np.diff(np.asarray(stamps, np.float64))

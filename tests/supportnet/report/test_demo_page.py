@@ -353,6 +353,9 @@ def test_a_held_time_offset_away_from_the_worlds_is_named_as_the_floor():
         "2.4 cm at the drive's 1.2 m/s" in md
     )
     assert "(uniform sampling ends at 2.55 cm median)" in md
+    uniform.update(time_offset_note="held at 0 s (time_offset.mode: fixed); points moved to it")
+    md = to_markdown(build_demo_page([world], [], runs=2, seconds=1.0))
+    assert "20 ms after the LiDAR; the config fixes it (time_offset.mode: fixed). Each scan" in md
     uniform.update(time_offset_s=0.0195, time_offset_std_s=0.0002)  # estimated: no floor to name
     md = to_markdown(build_demo_page([world], [], runs=2, seconds=1.0))
     assert "was held at" not in md
