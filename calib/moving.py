@@ -106,8 +106,7 @@ def seen_through(
     through = np.zeros(len(xyz), bool)
     if not len(xyz) or not others:
         return through
-    spacing = max(ring_spacing_deg(xyz), 0.1)
-    bins = _Bins(np.radians(config.azimuth_bin_deg), np.radians(spacing), xyz)
+    bins = _Bins.of_scan(xyz, config)
     here, r = bins.of(xyz)
     for other in others:
         other = np.asarray(other, np.float64)[:, :3]
@@ -167,14 +166,13 @@ def shadowed(
     shadow = np.zeros(len(xyz), bool)
     if config.shadow_deg <= 0 or not moving.any():
         return shadow
-    spacing = max(ring_spacing_deg(xyz), 0.1)
-    bins = _Bins(np.radians(config.azimuth_bin_deg), np.radians(spacing), xyz)
+    bins = _Bins.of_scan(xyz, config)
     here, r = bins.of(xyz)
     nearest = np.full(bins.size, np.inf)
     on = moving & (here >= 0)
     np.minimum.at(nearest, here[on], r[on])
     size = (
-        2 * int(np.ceil(config.shadow_deg / spacing)) + 1,
+        2 * int(np.ceil(np.radians(config.shadow_deg) / bins.step)) + 1,
         2 * int(np.ceil(config.shadow_deg / config.azimuth_bin_deg)) + 1,
     )
     near = ndimage.minimum_filter(nearest.reshape(bins.shape), size=size, mode=("nearest", "wrap")).ravel()
@@ -226,6 +224,12 @@ class _Bins:
         rows = int(np.ceil((float(elevation.max()) + elevation_step - self.low) / elevation_step)) + 1
         self.shape = (rows, int(np.ceil(2 * np.pi / azimuth_step)))
         self.size = self.shape[0] * self.shape[1]
+
+    @classmethod
+    def of_scan(cls, xyz: np.ndarray, config: MovingConfig) -> _Bins:
+        """Bins ``config.azimuth_bin_deg`` wide by the scan's own ring spacing (at least 0.1°)."""
+        spacing = max(ring_spacing_deg(xyz), 0.1)
+        return cls(np.radians(config.azimuth_bin_deg), np.radians(spacing), xyz)
 
     def of(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Each point's flat bin (``-1`` outside the elevation range) and range, ``(N,)`` each."""
