@@ -24,7 +24,7 @@ import torch
 
 from calib.geometry import se3_exp, se3_log
 
-__all__ = ["ScanMotion", "motions_from_poses", "sweep_times", "twist_spread"]
+__all__ = ["ScanMotion", "mean_twist", "motions_from_poses", "sweep_times", "twist_spread"]
 
 
 @dataclass(frozen=True)
@@ -116,6 +116,11 @@ def motions_from_poses(T_world_lidar: np.ndarray, stamps: np.ndarray, span: int 
     return motions
 
 
+def mean_twist(motions: list[ScanMotion]) -> np.ndarray:
+    """``(6,)`` the scans' mean body twist ``(v, ω)``, each scan's taken as the mean of its two sides."""
+    return np.mean([(m.before + m.after) / 2 for m in motions], axis=0)
+
+
 def twist_spread(motions: list[ScanMotion]) -> tuple[float, float]:
     """How much the motion differs between scans: the RMS distance of each scan's velocity
     (m/s) and angular velocity (rad/s) from their means, each scan's twist taken as the mean of
@@ -124,8 +129,7 @@ def twist_spread(motions: list[ScanMotion]) -> tuple[float, float]:
     A time offset moves every scan's points by ``δt`` times its twist; the part common to all
     scans is a fixed transform that the extrinsic absorbs, so only this spread tells ``δt`` apart.
     """
-    twists = np.stack([(m.before + m.after) / 2 for m in motions])
-    deviation = twists - twists.mean(0)
+    deviation = np.stack([(m.before + m.after) / 2 for m in motions]) - mean_twist(motions)
     speed = float(np.sqrt((deviation[:, :3] ** 2).sum(1).mean()))
     turn = float(np.sqrt((deviation[:, 3:] ** 2).sum(1).mean()))
     return speed, turn

@@ -24,11 +24,11 @@ import numpy as np
 from calib.data.extrinsic_file import rigid_problem
 from calib.data.types import Frame, Sequence
 from calib.errors import ConfigError, DataError
-from calib.init.lidar_odometry import SequenceMotions, scan_motions
+from calib.init.lidar_odometry import SequenceMotions
 from calib.init.motion_init import Stage1Config, Stage1Result, initial_calibration, load_stage1_config
 from calib.match.correspondences import Matcher
 from calib.match.edge_matcher import EdgeMatcher
-from calib.motion import ScanMotion
+from calib.motion import ScanMotion, mean_twist
 from calib.moving import without_moving
 from calib.observability import weak_directions
 from calib.refine.contour_refine import contour_refine
@@ -47,7 +47,7 @@ from calib.refine.tracking import OnlineState, departure, extrinsic_of
 from calib.results import CalibrationResult, OnlineEstimate
 from calib.support.source import SupportSource, UniformSupport
 
-__all__ = ["Calibrator", "OnlineCalibrator", "default_matcher", "select_frames"]
+__all__ = ["Calibrator", "OnlineCalibrator", "camera_time", "default_matcher", "select_frames"]
 
 NEAR_FINEST = 0.9
 """A pyramid level (or the probe) at or above this share of the finest working focal length would
@@ -114,6 +114,84 @@ class _Laps:
         return time.perf_counter() - self._start
 
 
+def camera_time(
+    config: CalibrateConfig,
+    seq: Sequence | FrameList[Frame],
+    picks: list[int],
+    frames: list[Frame],
+    known: Mapping[int, ScanMotion] | SequenceMotions | str | None,
+    initial_s: float | None = None,
+    restarts: bool = True,
+) -> tuple[ScanTiming | None, str, list[Frame], list[int]]:
+    """How the used ``frames`` (those at ``picks`` of ``seq``) move to the camera's time:
+    ``known`` motions, else LiDAR odometry around each (remembered by ``known`` where it is a
+    :class:`SequenceMotions` of ``seq``); or ``None`` and why the points stay as measured.
+    ``δt`` starts at ``initial_s`` where given, else at the config's (``restarts``: restarting
+    from where it settles, :func:`~calib.refine.passes.scan_timing`). Where ``δt`` is estimated,
+    the frames lose the points that the scans before and after them show moving
+    (``outliers.moving``): returned with how many each lost."""
+    cfg = config.time_offset
+    none = [0] * len(frames)
+    if cfg.mode == "off":
+        return None, "not modelled (time_offset.mode: off): points as measured", frames, none
+    if isinstance(known, str):
+        return None, f"not modelled, points as measured: {known}", frames, none
+    if isinstance(known, Mapping):
+        missing = [i for i in picks if i not in known]
+        if missing:
+            raise DataError("motions", f"have no motion for the frames at positions {missing}")
+        motions = [known[i] for i in picks]
+    else:
+        memo = known or SequenceMotions(seq, cfg.neighbours, cfg.deskew_rounds)
+        settings = (memo.neighbours, memo.deskew_rounds)
+        if memo.seq is not seq or settings != (cfg.neighbours, cfg.deskew_rounds):
+            raise ConfigError(
+                "motions",
+                "is a SequenceMotions of another sequence or other time_offset.neighbours / deskew_rounds",
+            )
+        motions, why = memo(picks)
+        if motions is None:
+            return None, f"not modelled, points as measured: {why}", frames, none
+    initial_s = cfg.initial_s if initial_s is None else initial_s
+    timing, note = scan_timing(frames, motions, cfg, initial_s, restarts=restarts)
+    moving, lost = config.outliers.moving, none
+    if moving.enabled and timing.estimate:  # a moving car seen δt later pulls δt (README)
+        times = partial(point_times, sweep=sweep_model(cfg))
+        frames, masks = without_moving(seq, picks, frames, timing.stamp, motions, moving, times)
+        timing = replace(timing, stamp=[q[~m] for q, m in zip(timing.stamp, masks, strict=True)])
+        lost = [int(m.sum()) for m in masks]
+    return timing, note, frames, lost
+
+
+def matcher_level(
+    matcher: Matcher,
+    config: CalibrateConfig,
+    levels: dict[tuple, tuple[Matcher, CalibrateConfig]],
+    focal: float | None = None,
+    fine: bool = False,
+) -> tuple[Matcher, CalibrateConfig]:
+    """The matcher and config of one level: the edge matcher at working focal length ``focal``
+    (``None``: the finest level's, ``config.finest_focal_px`` or its own) and, ``fine``, with
+    ``config.fine_intensity_weight`` where set (sharing this one's scan features); ``matcher``
+    and ``config`` themselves where that changes nothing. ``levels`` keeps each level made (by
+    what it changed): its image views serve the next calibration too."""
+    if not isinstance(matcher, EdgeMatcher):
+        return matcher, config
+    update: dict = {}
+    focal = focal if focal is not None else config.finest_focal_px
+    if focal is not None and focal != matcher.config.working_focal_px:
+        update["working_focal_px"] = focal
+    if fine and config.fine_intensity_weight is not None:
+        update["intensity_weight"] = config.fine_intensity_weight
+    if not update:
+        return matcher, config
+    key = tuple(sorted(update.items()))
+    if key not in levels:
+        edge = matcher.config.model_copy(update=update)
+        levels[key] = matcher.with_config(edge), config.model_copy(update={"edge": edge})
+    return levels[key]
+
+
 class Calibrator:
     """Calibrate a sequence: Stage 1 (or a given ``T_init``), then Stages 2–4 in passes.
 
@@ -165,73 +243,8 @@ class Calibrator:
         informations = [contour_information(f.points, T_init, f.K, f.image_size) for f in loaded.values()]
         return [candidates[j] for j in select_informative(informations, count)], loaded
 
-    def _scan_timing(
-        self,
-        seq: Sequence | FrameList[Frame],
-        picks: list[int],
-        frames: list[Frame],
-        known: Mapping[int, ScanMotion] | SequenceMotions | str | None,
-        initial_s: float | None = None,
-    ) -> tuple[ScanTiming | None, str, list[Frame], list[int]]:
-        """How the used frames' points move to the camera's time (``known`` motions, else LiDAR
-        odometry around each, remembered by ``known`` where it is a :class:`SequenceMotions` of
-        ``seq``), or ``None`` and why the points stay as measured; ``δt`` starts at
-        ``initial_s`` (Stage 1's) where given, else at the config's. Where ``δt`` is estimated, the
-        frames lose the points that the scans before and after them show moving
-        (``outliers.moving``): returned with how many each lost."""
-        cfg = self.config.time_offset
-        none = [0] * len(frames)
-        if cfg.mode == "off":
-            return None, "not modelled (time_offset.mode: off): points as measured", frames, none
-        if isinstance(known, str):
-            return None, f"not modelled, points as measured: {known}", frames, none
-        if isinstance(known, Mapping):
-            missing = [i for i in picks if i not in known]
-            if missing:
-                raise DataError("motions", f"have no motion for the frames at positions {missing}")
-            motions = [known[i] for i in picks]
-        else:
-            memo = known or SequenceMotions(seq, cfg.neighbours, cfg.deskew_rounds)
-            settings = (memo.neighbours, memo.deskew_rounds)
-            if memo.seq is not seq or settings != (cfg.neighbours, cfg.deskew_rounds):
-                raise ConfigError(
-                    "motions",
-                    "is a SequenceMotions of another sequence or other time_offset.neighbours / "
-                    "deskew_rounds",
-                )
-            motions, why = memo(picks)
-            if motions is None:
-                return None, f"not modelled, points as measured: {why}", frames, none
-        initial_s = cfg.initial_s if initial_s is None else initial_s
-        timing, note = scan_timing(frames, motions, cfg, initial_s)
-        moving, lost = self.config.outliers.moving, none
-        if moving.enabled and timing.estimate:  # a moving car seen δt later pulls δt (README)
-            times = partial(point_times, sweep=sweep_model(cfg))
-            frames, masks = without_moving(seq, picks, frames, timing.stamp, motions, moving, times)
-            timing = replace(timing, stamp=[q[~m] for q, m in zip(timing.stamp, masks, strict=True)])
-            lost = [int(m.sum()) for m in masks]
-        return timing, note, frames, lost
-
     def _level(self, focal: float | None = None, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:
-        """The matcher and config of one level: the edge matcher at working focal length ``focal``
-        (``None``: the finest level's, ``config.finest_focal_px`` or its own) and, ``fine``, with
-        ``config.fine_intensity_weight`` where set (sharing this one's scan features); this
-        calibrator's own where that changes nothing."""
-        if not isinstance(self.matcher, EdgeMatcher):
-            return self.matcher, self.config
-        update: dict = {}
-        focal = focal if focal is not None else self.config.finest_focal_px
-        if focal is not None and focal != self.matcher.config.working_focal_px:
-            update["working_focal_px"] = focal
-        if fine and self.config.fine_intensity_weight is not None:
-            update["intensity_weight"] = self.config.fine_intensity_weight
-        if not update:
-            return self.matcher, self.config
-        key = tuple(sorted(update.items()))
-        if key not in self._levels:  # kept: its image views serve the next calibration too
-            edge = self.matcher.config.model_copy(update=update)
-            self._levels[key] = self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
-        return self._levels[key]
+        return matcher_level(self.matcher, self.config, self._levels, focal, fine)
 
     def _finest_focal(self, frames: list[Frame]) -> float:
         """The finest level's working focal length on ``frames``: ``config.finest_focal_px`` (or
@@ -289,7 +302,9 @@ class Calibrator:
         picks, loaded = self._pick_frames(seq, T_init)
         frames = [loaded[i] if i in loaded else seq[i] for i in picks]
         lap("frames")
-        timing, timing_note, frames, moving = self._scan_timing(seq, picks, frames, motions, stage1_offset)
+        timing, timing_note, frames, moving = camera_time(
+            self.config, seq, picks, frames, motions, stage1_offset
+        )
         lap("motion and moving points")
         # the coarse stages see the points at the camera's time under the initial δt
         seen = frames if timing is None else timing.frames_at(frames, timing.offset_s)
@@ -451,6 +466,8 @@ class OnlineCalibrator:
         self._rng = np.random.default_rng(seed)
         self._state: OnlineState | None = None
         self._buffer: list[Frame] = []
+        self._history: list[Frame] = []  # the frames just before the window
+        self._levels: dict[tuple, tuple[Matcher, CalibrateConfig]] = {}
         self._pushed = 0
         self._next_start = 0
         self._windows = 0
@@ -477,15 +494,27 @@ class OnlineCalibrator:
             )
         if position >= self._next_start:
             self._buffer.append(frame)
+        else:
+            self._remember([frame])
         if len(self._buffer) < online.window:
             return None
         first = self._next_start
-        timing = self._window_timing()
-        passes = refine_passes(
-            self._buffer, self.T_cam_lidar, self.matcher, self.support, self.config, self._rng, timing=timing
+        timing, frames = self._window_timing()
+        matcher, config = self.matcher, self.config
+        if online.finest:
+            matcher, config = matcher_level(matcher, config, self._levels, fine=True)
+        T = self.T_cam_lidar
+        passes = refine_passes(frames, T, matcher, self.support, config, self._rng, timing=timing)
+        fitted = passes.time_offset_std_s is not None
+        taken = self._state.update(
+            departure(passes.T_cam_lidar, self.T_file),
+            passes.covariance,
+            # where δt may move, what each window's fit says of it (a straight one: with x)
+            mean_twist(timing.motions) if timing is not None and self._tracks_time_offset else None,
+            passes.time_offset_s or 0.0,
+            passes.time_offset_s if fitted else None,
+            passes.time_offset_std_s,
         )
-        self._state.update(departure(passes.T_cam_lidar, self.T_file), passes.covariance)
-        self._state.update_time_offset(passes.time_offset_s, passes.time_offset_std_s)
         middle = self._buffer[online.window // 2]
         estimate = OnlineEstimate(
             window=self._windows,
@@ -500,26 +529,36 @@ class OnlineCalibrator:
             reference_T_cam_lidar=self.T_file,
             time_offset_s=self._state.time_offset_s,
             time_offset_std_s=self._state.time_offset_std_s,
-            window_time_offset_s=passes.time_offset_s if passes.time_offset_std_s is not None else None,
+            window_time_offset_s=passes.time_offset_s if fitted else None,
+            window_time_offset_taken=taken,
         )
         self._windows += 1
         self._next_start += online.step
+        self._remember(self._buffer[: online.step])
         self._buffer = self._buffer[online.step :]
         return estimate
 
-    def _window_timing(self) -> ScanTiming | None:
-        """The window's frames moved to the running ``δt``, fitted where their motion tells it
-        (the window's scans are consecutive: each other's odometry neighbours)."""
-        cfg = self.config.time_offset
-        if cfg.mode == "off":
-            return None
-        motions, _ = scan_motions(
-            self._buffer, range(len(self._buffer)), cfg.neighbours, deskew_rounds=cfg.deskew_rounds
-        )
-        if motions is None:
-            return None
+    @property
+    def _tracks_time_offset(self) -> bool:
+        return self.config.time_offset.mode == "estimate"
+
+    def _remember(self, frames: list[Frame]) -> None:
+        """Keep the last ``time_offset.neighbours`` frames before the window: the odometry around
+        its first scans starts there (KISS-ICP misreads the speed over its first few scans)."""
+        keep = self.config.time_offset.neighbours
+        self._history = (self._history + frames)[-keep:] if keep else []
+
+    def _window_timing(self) -> tuple[ScanTiming | None, list[Frame]]:
+        """How the window's frames move to the running ``δt``, fitted where their motion tells it
+        (:func:`camera_time` with the scans before the window and within it as the odometry's),
+        and the frames less their moving points where it is fitted."""
+        context = [*self._history, *self._buffer]
+        picks = list(range(len(self._history), len(context)))
         # no δt restarts: the running estimate is tracked across windows
-        return scan_timing(self._buffer, motions, cfg, self._state.time_offset_s, restarts=False)[0]
+        timing, _, frames, _ = camera_time(
+            self.config, context, picks, self._buffer, None, self._state.time_offset_s, restarts=False
+        )
+        return timing, frames
 
 
 def _from(focal: float, floor: float | None) -> bool:

@@ -139,6 +139,8 @@ class OnlineEstimate:
         reference_T_cam_lidar: the calibration on file.
         time_offset_s, time_offset_std_s: the running ``δt`` and its std.
         window_time_offset_s: this window's own ``δt`` (``None``: held or not modelled).
+        window_time_offset_taken: whether the running ``δt`` took it (not where it lay outside
+            the gate, :class:`~calib.refine.tracking.OnlineConfig`'s ``time_offset_gate_sigmas``).
     """
 
     window: int
@@ -154,6 +156,7 @@ class OnlineEstimate:
     time_offset_s: float = 0.0
     time_offset_std_s: float = 0.0
     window_time_offset_s: float | None = None
+    window_time_offset_taken: bool = False
 
     @property
     def std(self) -> tuple[float, float]:
@@ -177,4 +180,5 @@ class OnlineEstimate:
             "time_offset_s": self.time_offset_s,
             "time_offset_std_s": self.time_offset_std_s,
             "window_time_offset_s": self.window_time_offset_s,
+            "window_time_offset_taken": self.window_time_offset_taken,
         }

@@ -1,15 +1,20 @@
 """Online calibration: Stage 4 over a sliding window of a stream, fused into a running estimate.
 
 The state is the extrinsic's departure from the one on file, ``x = log(T_file⁻¹ · T)`` (a twist
-``(ρ, ω)``, metres and radians). The mount is a random walk (a loosening bracket moves a little
-between windows), so each window predicts ``P ← P + Q`` and updates with that window's refined
-extrinsic ``z`` and its covariance ``R`` (Kalman): ``K = P (P + R)⁻¹, x ← x + K (z − x),
-P ← (I − K) P``. Drift is flagged when the running estimate has left the calibration on file by
-more than ``drift_sigmas`` of its uncertainty and a minimum size.
+``(ρ, ω)``, metres and radians), and the camera–LiDAR time offset ``δt`` (a clock that drifts
+slowly), with their joint covariance ``C``. Both are random walks (a loosening bracket moves a
+little between windows), so each window predicts ``C ← C + Q`` and updates (Kalman) with that
+window's refined extrinsic ``z`` and its covariance ``R``, and its own ``δt`` where its motion
+told it. A window's extrinsic was fitted with its points moved by the ``δt`` it used; were that
+off by ``ε``, the fit moves the extrinsic by ``−ε ξ̄`` (``ξ̄`` the LiDAR's mean body twist over the
+window), so ``z = x − ξ̄ (δt − δt_used)``: a straight window tells the extrinsic and ``δt``
+together, and once a turn tells ``δt`` that corrects what the straight ones said (the
+translation's bias along the drive).
 
-The camera–LiDAR time offset ``δt`` (a clock that drifts slowly) is tracked beside it by a
-scalar filter of the same kind, from the windows whose motion tells ``δt`` (the others leave it
-to the prediction), and its departure from where it started counts as drift too.
+Drift is flagged when the running estimate has left the calibration on file by more than
+``drift_sigmas`` of its uncertainty and a minimum size, or ``δt`` has left where it stood when
+a window first fitted it (the start, ``time_offset.initial_s``, is a guess within
+``time_offset_initial_std_ms``: the first fit correcting it is not the clock drifting).
 """
 
 from __future__ import annotations
@@ -31,6 +36,11 @@ class OnlineConfig(BaseModel):
 
     window: int = Field(10, ge=1, description="frames refined together")
     step: int = Field(5, ge=1, description="frames between the starts of two windows")
+    finest: bool = Field(
+        False,
+        description="each window's passes at the finest level (finest_focal_px, "
+        "fine_intensity_weight) instead of the matcher's own working focal length",
+    )
     initial_std: tuple[PositiveFloat, PositiveFloat] = Field(
         (10.0, 2.0), description="cm, °: how far the start may be from the truth"
     )
@@ -57,6 +67,13 @@ class OnlineConfig(BaseModel):
         "where the error was 1 ms on the synthetic street)",
     )
     time_offset_drift_min_ms: NonNegativeFloat = Field(5.0, description="δt drift: beyond this size too")
+    time_offset_gate_sigmas: PositiveFloat = Field(
+        3.0,
+        description="a window's δt this many standard deviations (its own and the prediction's) "
+        "from the running one is not taken (a fit in another minimum: one window of a turn can "
+        "settle 5-25 ms off, README), unless the window before said the same (the clock jumped); "
+        "its extrinsic still is, at the δt it used",
+    )
 
 
 def _diag(sizes: tuple[float, float]) -> np.ndarray:
@@ -76,49 +93,88 @@ def extrinsic_of(x: np.ndarray, T_file: np.ndarray) -> np.ndarray:
 
 @dataclass
 class OnlineState:
-    """The running estimate ``x (6,)`` and its covariance ``P (6, 6)`` about the file's extrinsic."""
+    """The running estimate: the extrinsic's departure ``x (6,)`` from the file's and ``δt``
+    (seconds), with their joint covariance ``C (7, 7)`` (``δt`` last)."""
 
     x: np.ndarray
-    P: np.ndarray
+    time_offset_s: float
+    C: np.ndarray
     config: OnlineConfig
-    time_offset_s: float = 0.0
-    time_offset_var: float = 0.0
-    time_offset_file_s: float = 0.0
+    time_offset_file_s: float | None = None
+    outside_s: float | None = None  # the last window's δt, where it fell outside the gate
 
     @classmethod
     def start(
         cls, T_init: np.ndarray, T_file: np.ndarray, config: OnlineConfig, time_offset_s: float = 0.0
     ) -> OnlineState:
-        return cls(
-            departure(T_init, T_file),
-            _diag(config.initial_std),
-            config,
-            time_offset_s,
-            (config.time_offset_initial_std_ms / 1e3) ** 2,
-            time_offset_s,
-        )
+        C = np.zeros((7, 7))
+        C[:6, :6] = _diag(config.initial_std)
+        C[6, 6] = (config.time_offset_initial_std_ms / 1e3) ** 2
+        return cls(departure(T_init, T_file), time_offset_s, C, config)
 
-    def update_time_offset(self, z_s: float | None, std_s: float | None) -> None:
-        """Predict ``δt`` one window on; fuse one window's ``z_s`` with ``std_s`` where it has one."""
-        self.time_offset_var += (self.config.time_offset_process_std_ms / 1e3) ** 2
-        if z_s is None or std_s is None:
-            return
-        r = std_s**2 + (self.config.time_offset_floor_ms / 1e3) ** 2
-        gain = self.time_offset_var / (self.time_offset_var + r)
-        self.time_offset_s += gain * (z_s - self.time_offset_s)
-        self.time_offset_var *= 1 - gain
+    @property
+    def P(self) -> np.ndarray:
+        """``(6, 6)`` the extrinsic's covariance (``δt`` marginalised out)."""
+        return self.C[:6, :6]
 
     @property
     def time_offset_std_s(self) -> float:
-        return float(np.sqrt(self.time_offset_var))
+        return float(np.sqrt(self.C[6, 6]))
 
-    def update(self, z: np.ndarray, R: np.ndarray) -> None:
-        """Fuse one window's estimate ``z (6,)`` with covariance ``R (6, 6)``."""
-        self.P = self.P + _diag(self.config.process_std)
-        R = R + _diag(self.config.measurement_floor)
-        gain = self.P @ np.linalg.inv(self.P + R)
-        self.x = self.x + gain @ (z - self.x)
-        self.P = (np.eye(6) - gain) @ self.P
+    def update(
+        self,
+        z: np.ndarray,
+        R: np.ndarray,
+        twist: np.ndarray | None = None,
+        used_s: float = 0.0,
+        z_s: float | None = None,
+        std_s: float | None = None,
+    ) -> bool:
+        """Predict one window on and fuse that window: its extrinsic's departure ``z (6,)`` with
+        covariance ``R (6, 6)``, fitted with its points moved by ``δt = used_s`` along the LiDAR's
+        mean body twist ``twist (6,)`` (``None``: not moved), and its own ``δt`` fit ``z_s`` with
+        ``std_s`` where it made one.
+
+        A window fitted at a ``δt`` off by ``ε`` finds the extrinsic moved by ``−ε · twist``
+        (its points sit where the LiDAR was ``ε`` earlier): ``z = x − twist (δt − used_s)``. So a
+        window that holds ``δt`` (a straight drive) tells ``x`` and ``δt`` together, and one that
+        turns tells ``δt`` too, which then corrects what the straight ones said of ``x``.
+
+        Returns:
+            Whether the window's own ``δt`` was taken (not where it fell outside the gate,
+            ``time_offset_gate_sigmas``).
+        """
+        cfg = self.config
+        Q = np.zeros((7, 7))
+        Q[:6, :6] = _diag(cfg.process_std)
+        Q[6, 6] = (cfg.time_offset_process_std_ms / 1e3) ** 2
+        C = self.C + Q
+        twist = np.zeros(6) if twist is None else np.asarray(twist, np.float64)
+        fitted = z_s is not None and std_s is not None
+        if fitted:
+            r = std_s**2 + (cfg.time_offset_floor_ms / 1e3) ** 2
+            gate = cfg.time_offset_gate_sigmas * np.sqrt(r)
+            if self.outside_s is not None and abs(z_s - self.outside_s) <= gate * np.sqrt(2):
+                C[6, 6] += (z_s - self.time_offset_s) ** 2  # two windows agree: the clock jumped
+            fitted = abs(z_s - self.time_offset_s) <= cfg.time_offset_gate_sigmas * np.sqrt(C[6, 6] + r)
+            self.outside_s = None if fitted else z_s
+        H = np.hstack([np.eye(6), -twist[:, None]])
+        m = np.asarray(z, np.float64) - twist * used_s
+        if fitted:
+            H, m = np.vstack([H, np.eye(7)[6]]), np.append(m, z_s)
+        noise = np.zeros((len(m), len(m)))
+        noise[:6, :6] = R + _diag(cfg.measurement_floor)
+        if fitted:
+            noise[6, 6] = r
+        s = np.append(self.x, self.time_offset_s)
+        gain = C @ H.T @ np.linalg.inv(H @ C @ H.T + noise)
+        s = s + gain @ (m - H @ s)
+        I_KH = np.eye(7) - gain @ H
+        self.C = I_KH @ C @ I_KH.T + gain @ noise @ gain.T  # Joseph form: stays symmetric
+        self.x, self.time_offset_s = s[:6], float(s[6])
+        if self.time_offset_file_s is None and fitted:
+            self.time_offset_file_s = self.time_offset_s  # where the clock stood when first told
+        return fitted
 
     @property
     def std(self) -> tuple[float, float]:
@@ -128,10 +184,11 @@ class OnlineState:
     @property
     def drift(self) -> bool:
         """Whether the estimate has left the calibration on file beyond its uncertainty."""
+        told = self.time_offset_file_s
         size = (
             100 * np.linalg.norm(self.x[:3]),
             np.degrees(np.linalg.norm(self.x[3:])),
-            1e3 * abs(self.time_offset_s - self.time_offset_file_s),
+            0.0 if told is None else 1e3 * abs(self.time_offset_s - told),
         )
         std = (*self.std, 1e3 * self.time_offset_std_s)
         minimums = (*self.config.drift_min, self.config.time_offset_drift_min_ms)

@@ -172,6 +172,7 @@ def _write_csv(rows: list[dict], path: Path) -> None:
     header += ["std_cm", "std_deg"] + ([f"truth_{n}" for n in names] if "truth" in rows[0] else [])
     header += [
         "window_time_offset_ms",
+        "window_time_offset_taken",
         "running_time_offset_ms",
         "time_offset_std_ms",
         "stamps_time_offset_ms",
@@ -184,7 +185,8 @@ def _write_csv(rows: list[dict], path: Path) -> None:
                 [r["window"], r["first_frame"], r["last_frame"], f"{r['time_s']:.3f}", int(r["drift"])]
                 + [f"{v:.4f}" for v in (*r["window_estimate"], *r["running_estimate"], *r["std_cm_deg"])]
                 + [f"{v:.4f}" for v in r.get("truth", [])]
-                + [_ms(r[k]) for k in ("window_time_offset_s", "time_offset_s", "time_offset_std_s")]
+                + [_ms(r["window_time_offset_s"]), int(r["window_time_offset_taken"])]
+                + [_ms(r[k]) for k in ("time_offset_s", "time_offset_std_s")]
                 + [_ms(r.get("time_offset_truth_s"))]
             )
 
@@ -222,11 +224,17 @@ def _plot(rows: list[dict], path: Path, title: str) -> None:
     ax.fill_between(t, dt - dt_band, dt + dt_band, alpha=0.25)
     ax.plot(t, dt, "-")
     fitted = [
-        (r["time_s"], 1e3 * r["window_time_offset_s"]) for r in rows if r["window_time_offset_s"] is not None
+        (r["time_s"], 1e3 * r["window_time_offset_s"], r["window_time_offset_taken"])
+        for r in rows
+        if r["window_time_offset_s"] is not None
     ]
+    for taken, marker, label in ((True, ".", "window fit"), (False, "x", "window fit, outside the gate")):
+        shown_fits = [(t, v) for t, v, k in fitted if k == taken]
+        if shown_fits:
+            ax.plot(*zip(*shown_fits, strict=True), marker, ms=5, color="C1", label=label)
     if fitted:
-        ax.plot(*zip(*fitted, strict=True), ".", ms=5)
-    shown = [*dt, *(v for _, v in fitted)]
+        ax.legend(fontsize=7)
+    shown = [*dt, *(v for _, v, _ in fitted)]
     if all("time_offset_truth_s" in r for r in rows):
         stamps = [1e3 * r["time_offset_truth_s"] for r in rows]
         ax.plot(t, stamps, "k--", lw=1)

@@ -37,18 +37,54 @@ def test_the_filter_follows_consistent_windows_and_grows_confident():
     assert not still.drift
 
 
-def test_the_time_offset_filter_follows_fitted_windows_and_waits_through_held_ones():
+def test_the_time_offset_filter_follows_fitted_windows_and_waits_through_unmoved_ones():
     config = OnlineConfig(
         time_offset_initial_std_ms=50.0, time_offset_process_std_ms=1.0, time_offset_floor_ms=1.0
     )
     state = OnlineState.start(np.eye(4), np.eye(4), config, time_offset_s=0.0)
-    state.update_time_offset(None, None)  # a straight window: prediction only
+    state.update(np.zeros(6), np.eye(6) * 1e-6)  # points not moved (no motion): δt predicted only
     assert state.time_offset_s == 0.0 and state.time_offset_std_s == pytest.approx(np.hypot(0.05, 0.001))
     assert not state.drift
-    for _ in range(6):  # the clock has moved to 20 ms: windows that turn say so, ±0.5 ms
-        state.update_time_offset(0.020, 0.0005)
+    assert state.update(np.zeros(6), np.eye(6) * 1e-6, None, 0.0, 0.005, 0.0005)  # a turn: 5 ms
+    assert state.time_offset_s == pytest.approx(0.005, abs=2e-4)
+    assert not state.drift  # the start was a guess: its correction is not the clock drifting
+    # a window settled in another minimum, 25 ms away: outside the gate, not taken
+    assert not state.update(np.zeros(6), np.eye(6) * 1e-6, None, 0.0, 0.030, 0.0005)
+    assert state.time_offset_s == pytest.approx(0.005, abs=2e-4)
+    # the clock jumps to 20 ms: the first window that says so is outside the gate, the next
+    # saying the same is taken
+    assert not state.update(np.zeros(6), np.eye(6) * 1e-6, None, 0.0, 0.020, 0.0005)
+    for _ in range(6):
+        assert state.update(np.zeros(6), np.eye(6) * 1e-6, None, 0.0, 0.020, 0.0005)
     assert state.time_offset_s == pytest.approx(0.020, abs=1e-4) and state.time_offset_std_s < 0.002
-    assert state.drift  # 20 ms from where it started: beyond 3σ and the 5 ms minimum
+    assert state.drift  # 15 ms from where it was first told: beyond 3σ and the 5 ms minimum
+
+
+def test_a_turn_corrects_what_straight_windows_said_of_the_translation():
+    """Known answer: the mount sits 2 cm behind the file (x = −2 cm along the LiDAR's x), the
+    camera fires 3 ms after the LiDAR, the car drives 8 m/s along x. Straight windows held at
+    δt = 0 find the extrinsic at ``x − ξ̄ δt`` = −4.4 cm; then a turn tells δt = 3 ms and the
+    extrinsic at that δt."""
+    config = OnlineConfig(initial_std=(2.0, 0.5), measurement_floor=(0.5, 0.05), time_offset_floor_ms=0.3)
+    twist = np.array([8.0, 0, 0, 0, 0, 0])
+    straight = np.array([-0.044, 0, 0, 0, 0, 0])
+    coupled = OnlineState.start(np.eye(4), np.eye(4), config, time_offset_s=0.0)
+    blind = OnlineState.start(np.eye(4), np.eye(4), config, time_offset_s=0.0)
+    for _ in range(4):
+        coupled.update(straight, np.eye(6) * 1e-8, twist, 0.0)
+        blind.update(straight, np.eye(6) * 1e-8)  # the window's δt not modelled
+    assert blind.x[0] == pytest.approx(-0.044, abs=0.003)  # the bias a filter without δt keeps
+    # a straight drive pins x − ξ̄ δt alone; the split follows the priors (x's 2 cm is tighter than
+    # δt's 50 ms, 40 cm at 8 m/s), and x stays as uncertain as it started
+    assert coupled.x[0] - 8.0 * coupled.time_offset_s == pytest.approx(-0.044, abs=1e-3)
+    assert np.sqrt(coupled.C[0, 0]) > 0.02
+    coupled.update(np.array([-0.02, 0, 0, 0, 0, 0]), np.eye(6) * 1e-8, twist, 0.003, 0.003, 0.0001)
+    assert coupled.time_offset_s == pytest.approx(0.003, abs=3e-4)
+    assert coupled.x[0] == pytest.approx(-0.02, abs=0.003) and np.sqrt(coupled.C[0, 0]) < 0.01
+    for _ in range(3):  # straight again, held at the running δt: they agree
+        coupled.update(np.array([-0.02, 0, 0, 0, 0, 0]), np.eye(6) * 1e-8, twist, coupled.time_offset_s)
+    assert coupled.x[0] == pytest.approx(-0.02, abs=0.003)
+    assert coupled.time_offset_s == pytest.approx(0.003, abs=3e-4)
 
 
 def test_synthetic_drift_is_exact_and_recorded(tmp_path):
@@ -79,14 +115,28 @@ def test_online_calibration_tracks_an_injected_drift(tmp_path):
     assert not first["drift"] and last["drift"] and out["first_drift_window"] >= 1
     rows = list(csv.DictReader((tmp_path / "online" / "estimates.csv").open()))
     assert len(rows) == 4 and rows[-1]["drift"] == "1"
-    # δt (the world's camera fires 5 ms after the LiDAR): windows on the straight are held at the
-    # running value, the one in the turn at the end fits it (measured 6.9 ms)
+    # δt: windows on the straight are held, the one in the turn at the end fits it. How well is
+    # the next test's: a mount turning 0.5°/s moves a window's rotation with time as a turn's δt
+    # does (this window: 8.4 ms for 5, against 4.6 without the drift)
     fitted = [float(r["window_time_offset_ms"]) for r in rows if r["window_time_offset_ms"]]
-    assert 1 <= len(fitted) < 4 and all(abs(v - 5.0) < 3.0 for v in fitted)
-    assert abs(float(rows[-1]["running_time_offset_ms"]) - 5.0) < 3.0
+    assert 1 <= len(fitted) < 4
     assert (tmp_path / "online" / "parameters.png").is_file()
     with pytest.raises(DataError, match="one support"):
         run_online(tmp_path, "00", "uniform,onnx", "perturb:0,0", tmp_path / "o2", config)
+
+
+def test_online_time_offset_is_fitted_in_the_turn_and_held_on_the_straight(tmp_path):
+    """The world's camera fires 5 ms after the LiDAR; the mount stays put. The first three
+    windows drive straight (δt held, moved only with the extrinsic, z = x − ξ̄ (δt − δt_used)),
+    the last enters the turn (frames 37 on) and fits δt (measured 4.63 ms)."""
+    write_sequence(Synthesizer(load_synth_config("urban", small=True), 40, seed=5), tmp_path / "data", "00")
+    config = load_calibrate_config().model_copy(update={"online": OnlineConfig(window=10, step=10)})
+    out = run_online(tmp_path / "data", "00", "uniform", "perturb:0,0", tmp_path / "online", config)
+    fitted = [w["window_time_offset_s"] for w in out["windows"]]
+    assert fitted[:3] == [None, None, None] and fitted[3] == pytest.approx(0.005, abs=1e-3)
+    assert out["windows"][-1]["window_time_offset_taken"]
+    assert out["windows"][-1]["time_offset_s"] == pytest.approx(0.005, abs=1e-3)
+    assert not any(w["drift"] for w in out["windows"])
 
 
 def test_synth_writes_the_same_frames_as_a_ros_bag(tmp_path):
