@@ -58,9 +58,9 @@ SCENES = {
 VARIANTS: dict[str, dict] = {
     "packaged": {},
     "dt-floor-3ms": {"online": {"time_offset_floor_ms": 3.0}},
-    "finest": {"online": {"finest": True}},
     "smooth": {"online": {"process_std": (0.3, 0.05), "measurement_floor": (3.0, 0.1)}},
     "no-moving": {"outliers": {"moving": {"enabled": False}}},
+    "window-20": {"online": {"window": 20, "step": 10}},
 }
 """Config overrides merged over the packaged ``calibrate.yaml`` (top-level groups as dicts)."""
 

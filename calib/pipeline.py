@@ -163,35 +163,6 @@ def camera_time(
     return timing, note, frames, lost
 
 
-def matcher_level(
-    matcher: Matcher,
-    config: CalibrateConfig,
-    levels: dict[tuple, tuple[Matcher, CalibrateConfig]],
-    focal: float | None = None,
-    fine: bool = False,
-) -> tuple[Matcher, CalibrateConfig]:
-    """The matcher and config of one level: the edge matcher at working focal length ``focal``
-    (``None``: the finest level's, ``config.finest_focal_px`` or its own) and, ``fine``, with
-    ``config.fine_intensity_weight`` where set (sharing this one's scan features); ``matcher``
-    and ``config`` themselves where that changes nothing. ``levels`` keeps each level made (by
-    what it changed): its image views serve the next calibration too."""
-    if not isinstance(matcher, EdgeMatcher):
-        return matcher, config
-    update: dict = {}
-    focal = focal if focal is not None else config.finest_focal_px
-    if focal is not None and focal != matcher.config.working_focal_px:
-        update["working_focal_px"] = focal
-    if fine and config.fine_intensity_weight is not None:
-        update["intensity_weight"] = config.fine_intensity_weight
-    if not update:
-        return matcher, config
-    key = tuple(sorted(update.items()))
-    if key not in levels:
-        edge = matcher.config.model_copy(update=update)
-        levels[key] = matcher.with_config(edge), config.model_copy(update={"edge": edge})
-    return levels[key]
-
-
 class Calibrator:
     """Calibrate a sequence: Stage 1 (or a given ``T_init``), then Stages 2–4 in passes.
 
@@ -244,7 +215,25 @@ class Calibrator:
         return [candidates[j] for j in select_informative(informations, count)], loaded
 
     def _level(self, focal: float | None = None, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:
-        return matcher_level(self.matcher, self.config, self._levels, focal, fine)
+        """The matcher and config of one level: the edge matcher at working focal length ``focal``
+        (``None``: the finest level's, ``config.finest_focal_px`` or its own) and, ``fine``, with
+        ``config.fine_intensity_weight`` where set (sharing this one's scan features); this
+        calibrator's own where that changes nothing."""
+        if not isinstance(self.matcher, EdgeMatcher):
+            return self.matcher, self.config
+        update: dict = {}
+        focal = focal if focal is not None else self.config.finest_focal_px
+        if focal is not None and focal != self.matcher.config.working_focal_px:
+            update["working_focal_px"] = focal
+        if fine and self.config.fine_intensity_weight is not None:
+            update["intensity_weight"] = self.config.fine_intensity_weight
+        if not update:
+            return self.matcher, self.config
+        key = tuple(sorted(update.items()))
+        if key not in self._levels:  # kept: its image views serve the next calibration too
+            edge = self.matcher.config.model_copy(update=update)
+            self._levels[key] = self.matcher.with_config(edge), self.config.model_copy(update={"edge": edge})
+        return self._levels[key]
 
     def _finest_focal(self, frames: list[Frame]) -> float:
         """The finest level's working focal length on ``frames``: ``config.finest_focal_px`` (or
@@ -500,11 +489,9 @@ class OnlineCalibrator:
             return None
         first = self._next_start
         timing, frames = self._window_timing()
-        matcher, config = self.matcher, self.config
-        if online.finest:
-            matcher, config = matcher_level(matcher, config, self._levels, fine=True)
-        T = self.T_cam_lidar
-        passes = refine_passes(frames, T, matcher, self.support, config, self._rng, timing=timing)
+        passes = refine_passes(
+            frames, self.T_cam_lidar, self.matcher, self.support, self.config, self._rng, timing=timing
+        )
         fitted = passes.time_offset_std_s is not None
         taken = self._state.update(
             departure(passes.T_cam_lidar, self.T_file),

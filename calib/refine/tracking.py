@@ -36,11 +36,6 @@ class OnlineConfig(BaseModel):
 
     window: int = Field(10, ge=1, description="frames refined together")
     step: int = Field(5, ge=1, description="frames between the starts of two windows")
-    finest: bool = Field(
-        False,
-        description="each window's passes at the finest level (finest_focal_px, "
-        "fine_intensity_weight) instead of the matcher's own working focal length",
-    )
     initial_std: tuple[PositiveFloat, PositiveFloat] = Field(
         (10.0, 2.0), description="cm, °: how far the start may be from the truth"
     )
