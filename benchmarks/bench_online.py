@@ -20,6 +20,7 @@ file's own error at the last window shows what tracking has to make up. Prints t
 
     .venv/bin/python benchmarks/bench_online.py [--scenes urban-turns,urban]
         [--variants packaged,dt-floor-3ms] [--name bench_online] [--data DIR: keep the renders]
+        [--init perturb:CM,DEG: start away from the file]
 """
 
 from __future__ import annotations
@@ -158,6 +159,9 @@ def main() -> None:
     parser.add_argument("--variants", default=",".join(VARIANTS))
     parser.add_argument("--name", default="bench_online", help="results/NAME.json")
     parser.add_argument(
+        "--init", default="perturb:0,0", help="where the stream starts (calibrate --init; default: the file)"
+    )
+    parser.add_argument(
         "--data", type=Path, default=None, help="render scenes here and reuse them (default: a temp folder)"
     )
     args = parser.parse_args()
@@ -171,7 +175,7 @@ def main() -> None:
                 out = Path(tmp) / f"{scene}_{variant}"
                 start = time.perf_counter()
                 result = run_online(
-                    data, "00", "uniform", "perturb:0,0", out, configured(variant), console=console
+                    data, "00", "uniform", args.init, out, configured(variant), console=console
                 )
                 seconds = time.perf_counter() - start
                 picture = RESULTS / f"{args.name}_{scene}_{variant}.png"
@@ -203,6 +207,7 @@ def main() -> None:
         args.name,
         {
             "machine": f"{platform.machine()}, {platform.system()}, python {platform.python_version()}",
+            "init": args.init,
             "drift_cm_deg": DRIFT,
             "clock_drift_ms": CLOCK_DRIFT_MS,
             "goals_cm_deg_ms": GOALS,
