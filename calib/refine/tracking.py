@@ -95,7 +95,7 @@ class OnlineState:
     time_offset_s: float
     C: np.ndarray
     config: OnlineConfig
-    time_offset_file_s: float | None = None
+    time_offset_told_s: float | None = None
     outside_s: float | None = None  # the last window's δt, where it fell outside the gate
 
     @classmethod
@@ -167,8 +167,8 @@ class OnlineState:
         I_KH = np.eye(7) - gain @ H
         self.C = I_KH @ C @ I_KH.T + gain @ noise @ gain.T  # Joseph form: stays symmetric
         self.x, self.time_offset_s = s[:6], float(s[6])
-        if self.time_offset_file_s is None and fitted:
-            self.time_offset_file_s = self.time_offset_s  # where the clock stood when first told
+        if self.time_offset_told_s is None and fitted:
+            self.time_offset_told_s = self.time_offset_s  # where the clock stood when first told
         return fitted
 
     @property
@@ -179,7 +179,7 @@ class OnlineState:
     @property
     def drift(self) -> bool:
         """Whether the estimate has left the calibration on file beyond its uncertainty."""
-        told = self.time_offset_file_s
+        told = self.time_offset_told_s
         size = (
             100 * np.linalg.norm(self.x[:3]),
             np.degrees(np.linalg.norm(self.x[3:])),
