@@ -116,9 +116,14 @@ def motions_from_poses(T_world_lidar: np.ndarray, stamps: np.ndarray, span: int 
     return motions
 
 
+def _scan_twists(motions: list[ScanMotion]) -> np.ndarray:
+    """``(F, 6)`` each scan's body twist ``(v, ω)``: the mean of its two sides."""
+    return np.stack([(m.before + m.after) / 2 for m in motions])
+
+
 def mean_twist(motions: list[ScanMotion]) -> np.ndarray:
     """``(6,)`` the scans' mean body twist ``(v, ω)``, each scan's taken as the mean of its two sides."""
-    return np.mean([(m.before + m.after) / 2 for m in motions], axis=0)
+    return _scan_twists(motions).mean(0)
 
 
 def twist_spread(motions: list[ScanMotion]) -> tuple[float, float]:
@@ -129,7 +134,8 @@ def twist_spread(motions: list[ScanMotion]) -> tuple[float, float]:
     A time offset moves every scan's points by ``δt`` times its twist; the part common to all
     scans is a fixed transform that the extrinsic absorbs, so only this spread tells ``δt`` apart.
     """
-    deviation = np.stack([(m.before + m.after) / 2 for m in motions]) - mean_twist(motions)
+    twists = _scan_twists(motions)
+    deviation = twists - twists.mean(0)
     speed = float(np.sqrt((deviation[:, :3] ** 2).sum(1).mean()))
     turn = float(np.sqrt((deviation[:, 3:] ** 2).sum(1).mean()))
     return speed, turn

@@ -456,7 +456,6 @@ class OnlineCalibrator:
         self._state: OnlineState | None = None
         self._buffer: list[Frame] = []
         self._history: list[Frame] = []  # the frames just before the window
-        self._levels: dict[tuple, tuple[Matcher, CalibrateConfig]] = {}
         self._pushed = 0
         self._next_start = 0
         self._windows = 0
@@ -496,8 +495,11 @@ class OnlineCalibrator:
         taken = self._state.update(
             departure(passes.T_cam_lidar, self.T_file),
             passes.covariance,
-            # where δt may move, what each window's fit says of it (a straight one: with x)
-            mean_twist(timing.motions) if timing is not None and self._tracks_time_offset else None,
+            # where δt may move (estimated, not fixed), what each window's fit says of it (a
+            # straight one: with the extrinsic)
+            mean_twist(timing.motions)
+            if timing is not None and self.config.time_offset.mode == "estimate"
+            else None,
             passes.time_offset_s or 0.0,
             passes.time_offset_s if fitted else None,
             passes.time_offset_std_s,
@@ -524,10 +526,6 @@ class OnlineCalibrator:
         self._remember(self._buffer[: online.step])
         self._buffer = self._buffer[online.step :]
         return estimate
-
-    @property
-    def _tracks_time_offset(self) -> bool:
-        return self.config.time_offset.mode == "estimate"
 
     def _remember(self, frames: list[Frame]) -> None:
         """Keep the last ``time_offset.neighbours`` frames before the window: the odometry around
