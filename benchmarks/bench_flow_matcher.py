@@ -13,7 +13,10 @@ paired runs from 10 cm / 2° on an 80-frame held-out sequence of each world (the
 draws for every matcher and support). Prints tables and writes benchmarks/results/flow_matcher.json.
 
     python benchmarks/bench_flow_matcher.py [--data build/model/vineyard:09 ...] [--model FILE]
-        [--real] [--runs 10]
+        [--compare NAME=FILE ...] [--real] [--runs 10]
+
+``--compare`` adds other learned models beside ``--model`` (named ``flow``), matched on the same
+frames and draws in the same run.
 
 Without ``--data`` it synthesises one 40-frame full-resolution sequence of each world with seed 9
 (held out: the shipped flow matcher trained on seeds 101-116) in a temporary folder; ``--real``
@@ -175,11 +178,19 @@ def main() -> None:
     parser.add_argument("--data", nargs="+", help="root:sequence of held-out sequences")
     parser.add_argument("--model", type=Path, default=SHIPPED_FLOW_MODEL)
     parser.add_argument(
+        "--compare", nargs="+", default=[], metavar="NAME=FILE", help="more learned models, same draws"
+    )
+    parser.add_argument(
         "--real", action="store_true", help="also the real KITTI fixtures (../shared/realdata)"
     )
     parser.add_argument("--runs", type=int, default=10, help="paired calibration runs (0: none)")
     args = parser.parse_args()
     matchers = {"edge": EdgeMatcher(), "flow": FlowMatcher(args.model)}
+    for entry in args.compare:
+        name, sep, path = entry.partition("=")
+        if not sep or name in matchers:
+            parser.error(f"--compare takes NAME=FILE with a new name, not {entry!r}")
+        matchers[name] = FlowMatcher(path)
     with tempfile.TemporaryDirectory() as tmp:
         data = {
             Path(d).name: (d, None, 8)
@@ -231,6 +242,7 @@ def main() -> None:
             "levels_deg": LEVELS,
             "cm_per_deg": CM_PER_DEG,
             "model": str(args.model),
+            "compared": dict(entry.partition("=")[::2] for entry in args.compare),
             "sequences": rows,
             "calibration": calibrated,
         },

@@ -63,7 +63,9 @@ class FlowModule(L.LightningModule):
         self.net = FlowNet(FlowConfig(**model))
         self.optim_config = OptimConfig(**optim)
         self.augment = FlowAugmentConfig(**augment)
-        self.photometric = photometric(self.augment.colour, self.augment.blur)
+        self.photometric = photometric(
+            self.augment.colour, self.augment.blur, self.augment.gamma, self.augment.noise
+        )
         self.contract = self.net.contract(near_m, working_focal_px)
         self.register_buffer("mean", torch.tensor(self.contract.mean).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(self.contract.std).view(1, 3, 1, 1), persistent=False)
@@ -83,7 +85,10 @@ class FlowModule(L.LightningModule):
                 self.net.load_state_dict(self._onnx_weights(path))
             else:
                 state = torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
-                self.load_state_dict(state)
+                # the network's alone: the augmentation (kornia's buffers) may differ from the run's
+                self.net.load_state_dict(
+                    {k.removeprefix("net."): v for k, v in state.items() if k.startswith("net.")}
+                )
         except (OSError, KeyError, RuntimeError, ValueError, pickle.UnpicklingError) as error:
             first = str(error).splitlines()[0] if str(error) else type(error).__name__
             raise DataError(path, f"holds no weights of this flow network ({first})") from None
@@ -131,7 +136,9 @@ class FlowModule(L.LightningModule):
 
     def _sensor_variety(self, batch: dict) -> dict:
         """Other cameras and LiDARs than the synthetic ones: grey images, intensity response
-        curves (a power in [1/2, 2]) and scans without intensity, each per sample."""
+        curves (a power in [1/2, 2]), scans without intensity, and scans that miss returns (a
+        share in [0, 0.4] of the LiDAR image's points lost, and left out of the loss), each per
+        sample."""
         n, a = len(batch["image"]), self.augment
         draw = lambda p: (torch.rand(n, device=self.device) < p).view(-1, 1, 1, 1)  # noqa: E731
         grey = batch["image"].mean(1, keepdim=True).expand_as(batch["image"])
@@ -141,6 +148,11 @@ class FlowModule(L.LightningModule):
         intensity = lidar[:, INTENSITY]
         intensity = torch.where(draw(a.intensity_gamma)[:, 0], intensity.clamp_min(0) ** power, intensity)
         lidar[:, INTENSITY] = torch.where(draw(a.intensity_off)[:, 0], torch.zeros_like(intensity), intensity)
+        if a.lidar_dropout:
+            lost = torch.empty(n, 1, 1, 1, device=self.device).uniform_(0, 0.4) * draw(a.lidar_dropout)
+            keep = (torch.rand_like(lidar[:, :1]) >= lost).to(lidar.dtype)
+            lidar = lidar * keep
+            batch["valid"] = batch["valid"] * keep
         batch["lidar"] = lidar
         return batch
 

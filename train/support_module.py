@@ -98,10 +98,18 @@ class SupportModule(L.LightningModule):
         return one_cycle(self, self.optim_config)
 
 
-def photometric(colour: float, blur: float) -> KA.AugmentationSequential:
-    """Colour jitter and blur with these probabilities, for the RGB image only."""
+def photometric(
+    colour: float, blur: float, gamma: float = 0.0, noise: float = 0.0
+) -> KA.AugmentationSequential:
+    """Colour jitter and blur with these probabilities, for the RGB image only; a gamma in [1/2, 2]
+    and Gaussian noise where their probabilities are not 0 (left out, not drawn, where they are:
+    a config without them draws what it always drew)."""
+    extra = [KA.RandomGamma((0.5, 2.0), p=gamma)] if gamma else []
+    extra += [KA.RandomGaussianNoise(std=0.03, p=noise)] if noise else []
     return KA.AugmentationSequential(
-        KA.ColorJitter(0.3, 0.3, 0.3, 0.03, p=colour), KA.RandomGaussianBlur((5, 5), (0.1, 1.5), p=blur)
+        KA.ColorJitter(0.3, 0.3, 0.3, 0.03, p=colour),
+        KA.RandomGaussianBlur((5, 5), (0.1, 1.5), p=blur),
+        *extra,
     )
 
 

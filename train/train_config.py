@@ -128,6 +128,16 @@ class FlowAugmentConfig(_Group):
         0.0, ge=0, le=1, description="probability of raising the LiDAR intensity to a power in [1/2, 2]"
     )
     intensity_off: float = Field(0.0, ge=0, le=1, description="probability of a LiDAR without intensity")
+    gamma: float = Field(
+        0.0, ge=0, le=1, description="probability of an image gamma in [1/2, 2] (exposure, camera response)"
+    )
+    noise: float = Field(0.0, ge=0, le=1, description="probability of Gaussian pixel noise (σ 0.03)")
+    lidar_dropout: float = Field(
+        0.0,
+        ge=0,
+        le=1,
+        description="probability of losing up to 40 % of the LiDAR image's points (missed returns)",
+    )
 
 
 class FlowTrainConfig(_Group):

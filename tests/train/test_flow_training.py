@@ -245,6 +245,35 @@ def test_sensor_variety_changes_only_what_it_names():
     assert torch.equal(a.argsort(), b.argsort())
 
 
+def test_lidar_dropout_loses_points_and_their_loss_together():
+    torch.manual_seed(0)
+    lidar = torch.rand(64, 5, 16, 20) + 0.1  # every pixel a point
+    batch = {"image": torch.rand(64, 3, 16, 20), "lidar": lidar, "valid": torch.ones(64, 1, 16, 20)}
+    out = _module({"lidar_dropout": 1.0})._sensor_variety(dict(batch))
+    kept = out["lidar"][:, 0] > 0
+    assert torch.equal(kept, out["valid"][:, 0] > 0)  # a lost point is neither seen nor scored
+    assert torch.equal(
+        out["lidar"][kept.unsqueeze(1).expand_as(lidar)], lidar[kept.unsqueeze(1).expand_as(lidar)]
+    )
+    lost = 1 - kept.float().mean(dim=(1, 2))
+    assert lost.max() <= 0.45 and 0.15 < lost.mean() < 0.25  # shares drawn in [0, 0.4]
+    assert torch.equal(out["image"], batch["image"])
+    untouched = _module()._sensor_variety(dict(batch))
+    assert torch.equal(untouched["lidar"], lidar) and untouched["valid"] is batch["valid"]
+
+
+def test_photometric_gamma_and_noise_only_where_asked():
+    from train.support_module import photometric
+
+    assert len(photometric(0.8, 0.2)) == 2  # the support predictor's and old configs' draws unchanged
+    image = torch.full((2, 3, 8, 10), 0.25)
+    torch.manual_seed(0)
+    gamma = photometric(0.0, 0.0, gamma=1.0)(image)
+    assert not torch.allclose(gamma, image) and torch.allclose(gamma, gamma[:, :, :1, :1].expand_as(gamma))
+    noisy = photometric(0.0, 0.0, noise=1.0)(image)
+    assert 0.02 < float((noisy - image).std()) < 0.04
+
+
 def test_fine_tuning_starts_from_the_weights_it_is_given(tmp_path):
     trained = _module()
     torch.save({"state_dict": trained.state_dict()}, tmp_path / "trained.ckpt")
