@@ -575,6 +575,12 @@ def main() -> None:
         "fullres: the finest passes at full resolution; contour; ...)",
     )
     parser.add_argument(
+        "--flow-model",
+        type=Path,
+        help="the learned matcher's ONNX file in every variant (default: the shipped one): a candidate "
+        "model on the same draws",
+    )
+    parser.add_argument(
         "--merge", action="store_true", help="keep the other datasets of an earlier bench_real.json"
     )
     parser.add_argument(
@@ -627,6 +633,8 @@ def main() -> None:
         parser.error(f"unknown level or variant: {', '.join(bad)}")
     wanted = set(args.fixtures.split(",")) if args.fixtures else None
     configs = variant_configs(variants)
+    if args.flow_model is not None:  # a candidate learned matcher in place of the shipped one
+        configs = {v: c.model_copy(update={"flow_model": args.flow_model}) for v, c in configs.items()}
     notes: dict = {}
     results: dict = {
         "levels": {k: LEVELS[k] for k in levels},
