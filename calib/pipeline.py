@@ -122,13 +122,15 @@ def camera_time(
     known: Mapping[int, ScanMotion] | SequenceMotions | str | None,
     initial_s: float | None = None,
     restarts: bool = True,
+    offset_known: bool = True,
 ) -> tuple[ScanTiming | None, str, list[Frame], list[int]]:
     """How the used ``frames`` (those at ``picks`` of ``seq``) move to the camera's time:
     ``known`` motions, else LiDAR odometry around each (remembered by ``known`` where it is a
     :class:`SequenceMotions` of ``seq``); or ``None`` and why the points stay as measured.
     ``δt`` starts at ``initial_s`` where given, else at the config's (``restarts``: restarting
     from where it settles, :func:`~calib.refine.passes.scan_timing`). Where ``δt`` is estimated,
-    the frames lose the points that the scans before and after them show moving
+    held at anything but 0, or not ``offset_known`` (an online window's running guess), the
+    frames lose the points that the scans before and after them show moving
     (``outliers.moving``): returned with how many each lost."""
     cfg = config.time_offset
     none = [0] * len(frames)
@@ -155,7 +157,10 @@ def camera_time(
     initial_s = cfg.initial_s if initial_s is None else initial_s
     timing, note = scan_timing(frames, motions, cfg, initial_s, restarts=restarts)
     moving, lost = config.outliers.moving, none
-    if moving.enabled and timing.estimate:  # a moving car seen δt later pulls δt (README)
+    # a moving car seen δt later pulls δt where it is fitted, and the extrinsic where δt is held
+    # at a value that is not 0 or not known (an online window's first guess of 0); held at a
+    # known 0, the cars the camera saw at the scan's time are evidence like a wall's (README)
+    if moving.enabled and (timing.estimate or timing.offset_s != 0.0 or not offset_known):
         times = partial(point_times, sweep=sweep_model(cfg))
         frames, masks = without_moving(seq, picks, frames, timing.stamp, motions, moving, times)
         timing = replace(timing, stamp=[q[~m] for q, m in zip(timing.stamp, masks, strict=True)])
@@ -539,9 +544,16 @@ class OnlineCalibrator:
         and the frames less their moving points where it is fitted."""
         context = [*self._history, *self._buffer]
         picks = list(range(len(self._history), len(context)))
-        # no δt restarts: the running estimate is tracked across windows
+        # no δt restarts: the running estimate is tracked across windows; a guess, not a known δt
         timing, _, frames, _ = camera_time(
-            self.config, context, picks, self._buffer, None, self._state.time_offset_s, restarts=False
+            self.config,
+            context,
+            picks,
+            self._buffer,
+            None,
+            self._state.time_offset_s,
+            restarts=False,
+            offset_known=False,
         )
         return timing, frames
 

@@ -167,8 +167,10 @@ def test_without_moving_drops_them_from_the_frames_that_have_scans_around():
     assert [int(m.sum()) for m in masks] == [0]
 
 
-@pytest.mark.parametrize("mode", ["estimate", "fixed"])
-def test_the_calibrator_leaves_them_out_where_it_estimates_the_time_offset(monkeypatch, mode):
+@pytest.mark.parametrize(("mode", "initial_s"), [("estimate", 0.0), ("fixed", 0.0), ("fixed", 0.02)])
+def test_the_calibrator_leaves_them_out_where_the_time_offset_is_estimated_or_not_0(
+    monkeypatch, mode, initial_s
+):
     import calib.pipeline as pipeline
     from calib.refine.passes import CalibrateConfig, PassesResult
 
@@ -189,7 +191,7 @@ def test_the_calibrator_leaves_them_out_where_it_estimates_the_time_offset(monke
                 update={"moving": base.outliers.moving.model_copy(update={"shadow_deg": 0.0})}
             ),
             "time_offset": base.time_offset.model_copy(
-                update={"mode": mode, "min_speed_spread_mps": 1e-9, "restarts_ms": ()}
+                update={"mode": mode, "initial_s": initial_s, "min_speed_spread_mps": 1e-9, "restarts_ms": ()}
             ),
         }
     )
@@ -202,9 +204,36 @@ def test_the_calibrator_leaves_them_out_where_it_estimates_the_time_offset(monke
     result = pipeline.Calibrator(config=config).calibrate(seq, np.eye(4), motions=motions)
     upper = [int(((f.labels == 1) & (f.points[:, 2] > ABOVE_GROUND)).sum()) for f in seq]
     boxes = [int((f.labels == 1).sum()) for f in seq]
-    if mode == "fixed":
+    if mode == "fixed" and initial_s == 0:  # the cars the camera saw at the scan's time stay
         assert result.moving_points == [0] * 7 and seen[0] == [len(f.points) for f in seq]
     else:  # every frame has a scan 3 apart on one side at least, its box 3 m away
         assert all(u <= lost <= b for u, lost, b in zip(upper, result.moving_points, boxes, strict=True))
         assert seen[0] == [len(f.points) - lost for f, lost in zip(seq, result.moving_points, strict=True)]
         assert result.to_dict()["moving_points"] == result.moving_points
+
+
+@pytest.mark.parametrize("offset_known", [True, False])
+def test_an_online_window_leaves_them_out_at_its_first_guess_of_0(offset_known):
+    from calib.pipeline import camera_time
+    from calib.refine.passes import CalibrateConfig
+
+    base = CalibrateConfig(frames=7)
+    config = base.model_copy(
+        update={
+            "outliers": base.outliers.model_copy(
+                update={"moving": base.outliers.moving.model_copy(update={"shadow_deg": 0.0})}
+            ),
+            "time_offset": base.time_offset.model_copy(update={"mode": "fixed", "initial_s": 0.0}),
+        }
+    )
+    seq = _frames([-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0])
+    still = {k: ScanMotion.still() for k in range(7)}
+    timing, _, frames, lost = camera_time(
+        config, seq, [3], [seq[3]], still, restarts=False, offset_known=offset_known
+    )
+    assert timing is not None and not timing.estimate and timing.offset_s == 0.0
+    box = int((seq[3].labels == 1).sum())
+    if offset_known:  # a known 0: the cars the camera saw at the scan's time stay
+        assert lost == [0] and len(frames[0].points) == len(seq[3].points)
+    else:
+        assert 0 < lost[0] <= box and len(frames[0].points) == len(seq[3].points) - lost[0]
