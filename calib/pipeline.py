@@ -541,7 +541,7 @@ class OnlineCalibrator:
     def _window_timing(self) -> tuple[ScanTiming | None, list[Frame]]:
         """How the window's frames move to the running ``δt``, fitted where their motion tells it
         (:func:`camera_time` with the scans before the window and within it as the odometry's),
-        and the frames less their moving points where it is fitted."""
+        and the frames less their moving points (held or fitted: the running ``δt`` is a guess)."""
         context = [*self._history, *self._buffer]
         picks = list(range(len(self._history), len(context)))
         # no δt restarts: the running estimate is tracked across windows; a guess, not a known δt
