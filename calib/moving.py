@@ -62,11 +62,11 @@ class MovingConfig(BaseModel):
 
     enabled: bool = Field(
         True,
-        description="where δt is estimated or held away from 0 (an online window's running δt), "
-        "leave out the points the scans around see through (needs consecutive scans and the "
-        "LiDAR's motion); with δt held at 0 the moving cars stay: seen at the scan's time they "
-        "are evidence like any other (synthetic urban in sync, from 10° / 50 cm: median 0.86 cm "
-        "with them, 1.16 without, README)",
+        description="where δt is estimated or held away from 0, and in every online window (its δt "
+        "is a running guess), leave out the points the scans around see through (needs "
+        "consecutive scans and the LiDAR's motion); offline with δt held at 0 the moving cars "
+        "stay: seen at the scan's time they are evidence like any other (synthetic urban in sync, "
+        "from 10° / 50 cm: median 0.86 cm with them, 1.16 without, README)",
     )
     scans_apart: int = Field(
         3,
