@@ -464,6 +464,7 @@ class OnlineCalibrator:
         self._pushed = 0
         self._next_start = 0
         self._windows = 0
+        self._last_time_s: float | None = None  # the last window's middle frame's stamp
 
     @property
     def T_cam_lidar(self) -> np.ndarray:
@@ -492,7 +493,12 @@ class OnlineCalibrator:
         if len(self._buffer) < online.window:
             return None
         first = self._next_start
-        timing, frames = self._window_timing()
+        middle = self._buffer[online.window // 2]
+        elapsed = None
+        if middle.timestamp is not None and self._last_time_s is not None:
+            elapsed = middle.timestamp - self._last_time_s
+        self._last_time_s = middle.timestamp
+        timing, frames = self._window_timing(self._state.predicted_time_offset_s(elapsed))
         passes = refine_passes(
             frames, self.T_cam_lidar, self.matcher, self.support, self.config, self._rng, timing=timing
         )
@@ -508,8 +514,8 @@ class OnlineCalibrator:
             passes.time_offset_s or 0.0,
             passes.time_offset_s if fitted else None,
             passes.time_offset_std_s,
+            elapsed,
         )
-        middle = self._buffer[online.window // 2]
         estimate = OnlineEstimate(
             window=self._windows,
             first_frame=first,
@@ -525,6 +531,7 @@ class OnlineCalibrator:
             time_offset_std_s=self._state.time_offset_std_s,
             window_time_offset_s=passes.time_offset_s if fitted else None,
             window_time_offset_taken=taken,
+            time_offset_rate=self._state.time_offset_rate,
         )
         self._windows += 1
         self._next_start += online.step
@@ -538,8 +545,9 @@ class OnlineCalibrator:
         keep = self.config.time_offset.neighbours
         self._history = (self._history + frames)[-keep:] if keep else []
 
-    def _window_timing(self) -> tuple[ScanTiming | None, list[Frame]]:
-        """How the window's frames move to the running ``δt``, fitted where their motion tells it
+    def _window_timing(self, time_offset_s: float) -> tuple[ScanTiming | None, list[Frame]]:
+        """How the window's frames move to ``time_offset_s`` (the running ``δt`` carried to the
+        window at its rate), fitted where their motion tells it
         (:func:`camera_time` with the scans before the window and within it as the odometry's),
         and the frames less their moving points (held or fitted: the running ``δt`` is a guess)."""
         context = [*self._history, *self._buffer]
@@ -551,7 +559,7 @@ class OnlineCalibrator:
             picks,
             self._buffer,
             None,
-            self._state.time_offset_s,
+            time_offset_s,
             restarts=False,
             offset_known=False,
         )

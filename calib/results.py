@@ -138,6 +138,7 @@ class OnlineEstimate:
         correspondences: how many this window's last pass used.
         reference_T_cam_lidar: the calibration on file.
         time_offset_s, time_offset_std_s: the running ``δt`` and its std.
+        time_offset_rate: the rate the running ``δt`` drifts at (seconds per second).
         window_time_offset_s: this window's own ``δt`` (``None``: held or not modelled).
         window_time_offset_taken: whether the running ``δt`` took it (not where it lay outside
             the gate, :class:`~calib.refine.tracking.OnlineConfig`'s ``time_offset_gate_sigmas``).
@@ -157,6 +158,7 @@ class OnlineEstimate:
     time_offset_std_s: float = 0.0
     window_time_offset_s: float | None = None
     window_time_offset_taken: bool = False
+    time_offset_rate: float = 0.0
 
     @property
     def std(self) -> tuple[float, float]:
@@ -181,4 +183,5 @@ class OnlineEstimate:
             "time_offset_std_s": self.time_offset_std_s,
             "window_time_offset_s": self.window_time_offset_s,
             "window_time_offset_taken": self.window_time_offset_taken,
+            "time_offset_rate": self.time_offset_rate,
         }

@@ -1,11 +1,11 @@
 """Online calibration: Stage 4 over a sliding window of a stream, fused into a running estimate.
 
 The state is the extrinsic's departure from the one on file, ``x = log(T_file⁻¹ · T)`` (a twist
-``(ρ, ω)``, metres and radians), and the camera–LiDAR time offset ``δt`` (a clock that drifts
-slowly), with their joint covariance ``C``. Both are random walks (a loosening bracket moves a
-little between windows), so each window predicts ``C ← C + Q`` and updates (Kalman) with that
-window's refined extrinsic ``z`` and its covariance ``R``, and its own ``δt`` where its motion
-told it. A window's extrinsic was fitted with its points moved by the ``δt`` it used; were that
+``(ρ, ω)``, metres and radians), the camera–LiDAR time offset ``δt`` and the rate it drifts at
+(two free-running clocks drift apart linearly), with their joint covariance ``C``. The extrinsic
+is a random walk (a loosening bracket moves a little between windows), ``δt`` moves on by its
+rate and diffuses; each window predicts and updates (Kalman) with that window's refined
+extrinsic ``z`` and its covariance ``R``, and its own ``δt`` where its motion told it. A window's extrinsic was fitted with its points moved by the ``δt`` it used; were that
 off by ``ε``, the fit moves the extrinsic by ``−ε ξ̄`` (``ξ̄`` the LiDAR's mean body twist over the
 window), so ``z = x − ξ̄ (δt − δt_used)``: a straight window tells the extrinsic and ``δt``
 together, and once a turn tells ``δt`` that corrects what the straight ones said (the
@@ -56,6 +56,15 @@ class OnlineConfig(BaseModel):
     time_offset_process_std_ms: NonNegativeFloat = Field(
         1.0, description="how far δt may move between windows"
     )
+    time_offset_rate_initial_std_ppm: NonNegativeFloat = Field(
+        1000.0,
+        description="how fast the clock may drift at the start (ppm: µs of δt per second; 0: δt is a "
+        "random walk alone); the rate is tracked, so between the turns that tell δt it moves on at "
+        "the rate the turns showed",
+    )
+    time_offset_rate_process_std_ppm: NonNegativeFloat = Field(
+        50.0, description="how far that rate may change between windows"
+    )
     time_offset_floor_ms: NonNegativeFloat = Field(
         1.0,
         description="added to each window's δt std (the fit's own is optimistic: 0.02 ms claimed "
@@ -88,13 +97,15 @@ def extrinsic_of(x: np.ndarray, T_file: np.ndarray) -> np.ndarray:
 
 @dataclass
 class OnlineState:
-    """The running estimate: the extrinsic's departure ``x (6,)`` from the file's and ``δt``
-    (seconds), with their joint covariance ``C (7, 7)`` (``δt`` last)."""
+    """The running estimate: the extrinsic's departure ``x (6,)`` from the file's, ``δt``
+    (seconds) and the rate it drifts at (seconds per second), with their joint covariance
+    ``C (8, 8)`` (``δt`` and its rate last)."""
 
     x: np.ndarray
     time_offset_s: float
     C: np.ndarray
     config: OnlineConfig
+    time_offset_rate: float = 0.0
     time_offset_told_s: float | None = None
     outside_s: float | None = None  # the last window's δt, where it fell outside the gate
 
@@ -102,15 +113,20 @@ class OnlineState:
     def start(
         cls, T_init: np.ndarray, T_file: np.ndarray, config: OnlineConfig, time_offset_s: float = 0.0
     ) -> OnlineState:
-        C = np.zeros((7, 7))
+        C = np.zeros((8, 8))
         C[:6, :6] = _diag(config.initial_std)
         C[6, 6] = (config.time_offset_initial_std_ms / 1e3) ** 2
+        C[7, 7] = (config.time_offset_rate_initial_std_ppm * 1e-6) ** 2
         return cls(departure(T_init, T_file), time_offset_s, C, config)
 
     @property
     def P(self) -> np.ndarray:
         """``(6, 6)`` the extrinsic's covariance (``δt`` marginalised out)."""
         return self.C[:6, :6]
+
+    def predicted_time_offset_s(self, elapsed_s: float | None) -> float:
+        """``δt`` carried ``elapsed_s`` seconds on at its rate (``None``: as it stands)."""
+        return self.time_offset_s + self.time_offset_rate * (elapsed_s or 0.0)
 
     @property
     def time_offset_std_s(self) -> float:
@@ -124,11 +140,17 @@ class OnlineState:
         used_s: float = 0.0,
         z_s: float | None = None,
         std_s: float | None = None,
+        elapsed_s: float | None = None,
     ) -> bool:
         """Predict one window on and fuse that window: its extrinsic's departure ``z (6,)`` with
         covariance ``R (6, 6)``, fitted with its points moved by ``δt = used_s`` along the LiDAR's
         mean body twist ``twist (6,)`` (``None``: not moved), and its own ``δt`` fit ``z_s`` with
         ``std_s`` where it made one.
+
+        The clock is an offset and a rate (a skew, as two free-running clocks drift: linearly
+        between corrections): over the ``elapsed_s`` seconds since the last window ``δt`` moves on
+        by its rate times them (``None``: no times known, ``δt`` only diffuses). Between the turns
+        that tell ``δt``, the straight windows' translations then follow the clock as it drifts.
 
         A window fitted at a ``δt`` off by ``ε`` finds the extrinsic moved by ``−ε · twist``
         (its points sit where the LiDAR was ``ε`` earlier): ``z = x − twist (δt − used_s)``. So a
@@ -140,33 +162,36 @@ class OnlineState:
             ``time_offset_gate_sigmas``).
         """
         cfg = self.config
-        Q = np.zeros((7, 7))
+        F = np.eye(8)
+        F[6, 7] = elapsed_s or 0.0
+        Q = np.zeros((8, 8))
         Q[:6, :6] = _diag(cfg.process_std)
         Q[6, 6] = (cfg.time_offset_process_std_ms / 1e3) ** 2
-        C = self.C + Q
+        Q[7, 7] = (cfg.time_offset_rate_process_std_ppm * 1e-6) ** 2
+        s = F @ np.append(self.x, [self.time_offset_s, self.time_offset_rate])
+        C = F @ self.C @ F.T + Q
         twist = np.zeros(6) if twist is None else np.asarray(twist, np.float64)
         fitted = z_s is not None and std_s is not None
         if fitted:
             r = std_s**2 + (cfg.time_offset_floor_ms / 1e3) ** 2
             gate = cfg.time_offset_gate_sigmas * np.sqrt(r)
             if self.outside_s is not None and abs(z_s - self.outside_s) <= gate * np.sqrt(2):
-                C[6, 6] += (z_s - self.time_offset_s) ** 2  # two windows agree: the clock jumped
-            fitted = abs(z_s - self.time_offset_s) <= cfg.time_offset_gate_sigmas * np.sqrt(C[6, 6] + r)
+                C[6, 6] += (z_s - s[6]) ** 2  # two windows agree: the clock jumped
+            fitted = abs(z_s - s[6]) <= cfg.time_offset_gate_sigmas * np.sqrt(C[6, 6] + r)
             self.outside_s = None if fitted else z_s
-        H = np.hstack([np.eye(6), -twist[:, None]])
+        H = np.hstack([np.eye(6), -twist[:, None], np.zeros((6, 1))])
         m = np.asarray(z, np.float64) - twist * used_s
         if fitted:
-            H, m = np.vstack([H, np.eye(7)[6]]), np.append(m, z_s)
+            H, m = np.vstack([H, np.eye(8)[6]]), np.append(m, z_s)
         noise = np.zeros((len(m), len(m)))
         noise[:6, :6] = R + _diag(cfg.measurement_floor)
         if fitted:
             noise[6, 6] = r
-        s = np.append(self.x, self.time_offset_s)
         gain = C @ H.T @ np.linalg.inv(H @ C @ H.T + noise)
         s = s + gain @ (m - H @ s)
-        I_KH = np.eye(7) - gain @ H
+        I_KH = np.eye(8) - gain @ H
         self.C = I_KH @ C @ I_KH.T + gain @ noise @ gain.T  # Joseph form: stays symmetric
-        self.x, self.time_offset_s = s[:6], float(s[6])
+        self.x, self.time_offset_s, self.time_offset_rate = s[:6], float(s[6]), float(s[7])
         if self.time_offset_told_s is None and fitted:
             self.time_offset_told_s = self.time_offset_s  # where the clock stood when first told
         return fitted

@@ -175,6 +175,7 @@ def _write_csv(rows: list[dict], path: Path) -> None:
         "window_time_offset_taken",
         "running_time_offset_ms",
         "time_offset_std_ms",
+        "time_offset_rate_ppm",
         "stamps_time_offset_ms",
     ]
     with path.open("w", newline="") as f:
@@ -187,6 +188,7 @@ def _write_csv(rows: list[dict], path: Path) -> None:
                 + [f"{v:.4f}" for v in r.get("truth", [])]
                 + [_ms(r["window_time_offset_s"]), int(r["window_time_offset_taken"])]
                 + [_ms(r[k]) for k in ("time_offset_s", "time_offset_std_s")]
+                + [f"{1e6 * r['time_offset_rate']:.1f}"]
                 + [_ms(r.get("time_offset_truth_s"))]
             )
 

@@ -87,6 +87,40 @@ def test_a_turn_corrects_what_straight_windows_said_of_the_translation():
     assert coupled.time_offset_s == pytest.approx(0.003, abs=3e-4)
 
 
+@pytest.mark.parametrize("rate_ppm", [0.0, 1000.0])
+def test_a_drifting_clock_is_followed_between_the_turns_at_its_rate(rate_ppm):
+    """Known answer: the clock drifts 1 ms/s from 5 ms, windows every 0.5 s, a turn tells δt
+    every fourth window, the straight ones between see the car's 8 m/s along x (the mount sits on
+    the file). Held at its last turn's value (no rate: a random walk) δt lags 1 ms by the next
+    turn and the translation takes 0.75 cm of it; with the rate tracked both lags shrink turn by
+    turn, to a tenth after five turns."""
+    config = OnlineConfig(
+        initial_std=(2.0, 0.5),
+        measurement_floor=(0.5, 0.05),
+        time_offset_floor_ms=0.3,
+        time_offset_rate_initial_std_ppm=rate_ppm,
+        time_offset_rate_process_std_ppm=rate_ppm / 20,
+    )
+    twist = np.array([8.0, 0, 0, 0, 0, 0])
+    state = OnlineState.start(np.eye(4), np.eye(4), config, time_offset_s=0.0)
+    lag_ms, bias_cm = [], []
+    for k in range(24):
+        elapsed = 0.5 if k else None
+        clock = 0.005 + 1e-3 * 0.5 * k
+        used = state.predicted_time_offset_s(elapsed)  # what the window's points are moved by
+        z = -twist * (clock - used)  # the mount at the file: all of z is the δt error times v
+        told = (clock, 1e-4) if k % 4 == 0 else (None, None)
+        state.update(z, np.eye(6) * 1e-8, twist, used, *told, elapsed)
+        lag_ms.append(1e3 * (clock - state.time_offset_s))
+        bias_cm.append(-100 * state.x[0])
+    if rate_ppm == 0:
+        assert lag_ms[-1] == pytest.approx(1.0, abs=0.05) and bias_cm[-1] == pytest.approx(0.75, abs=0.05)
+        assert state.time_offset_rate == 0.0
+    else:
+        assert lag_ms[3] > 0.5 and lag_ms[-1] < 0.2 and bias_cm[-1] < 0.15
+        assert state.time_offset_rate == pytest.approx(1e-3, rel=0.2)
+
+
 def test_synthetic_drift_is_exact_and_recorded(tmp_path):
     synth = Synthesizer(load_synth_config("urban", small=True), 5, seed=3, drift=(4.0, 1.0))
     assert calibration_error(synth.extrinsic(4), synth.T_cam_lidar).translation_cm == pytest.approx(4.0)
