@@ -5,8 +5,9 @@ The state is the extrinsic's departure from the one on file, ``x = log(T_file⁻
 (two free-running clocks drift apart linearly), with their joint covariance ``C``. The extrinsic
 is a random walk (a loosening bracket moves a little between windows), ``δt`` moves on by its
 rate and diffuses; each window predicts and updates (Kalman) with that window's refined
-extrinsic ``z`` and its covariance ``R``, and its own ``δt`` where its motion told it. A window's extrinsic was fitted with its points moved by the ``δt`` it used; were that
-off by ``ε``, the fit moves the extrinsic by ``−ε ξ̄`` (``ξ̄`` the LiDAR's mean body twist over the
+extrinsic ``z`` and its covariance ``R``, and its own ``δt`` where its motion told it.
+A window's extrinsic was fitted with its points moved by the ``δt`` it used; were that off by
+``ε``, the fit moves the extrinsic by ``−ε ξ̄`` (``ξ̄`` the LiDAR's mean body twist over the
 window), so ``z = x − ξ̄ (δt − δt_used)``: a straight window tells the extrinsic and ``δt``
 together, and once a turn tells ``δt`` that corrects what the straight ones said (the
 translation's bias along the drive).
