@@ -62,8 +62,8 @@ VARIANTS: dict[str, dict] = {
     "smooth": {"online": {"process_std": (0.3, 0.05), "measurement_floor": (3.0, 0.1)}},
     "no-moving": {"outliers": {"moving": {"enabled": False}}},
     "window-20": {"online": {"window": 20, "step": 10}},
-    "no-clock-rate": {
-        "online": {"time_offset_rate_initial_std_ppm": 0.0, "time_offset_rate_process_std_ppm": 0.0}
+    "clock-rate": {
+        "online": {"time_offset_rate_initial_std_ppm": 1000.0, "time_offset_rate_process_std_ppm": 50.0}
     },
 }
 """Config overrides merged over the packaged ``calibrate.yaml`` (top-level groups as dicts)."""

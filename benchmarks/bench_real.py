@@ -7,7 +7,8 @@ the two KITTI raw 2011_09_28 folders (grey camera 0, two and four frames) and al
 together (``kitti-raw-0928-all6``: both folders' calibrations are checked to be equal), KITTI object
 000008 (scan cropped to the camera view) and 000114 (full scan, colour camera), the six nuScenes
 cameras of one sample, the three PJLab scenes (64 rings, distorted 1920x1200 camera; scans in
-scan-line order, per-point times dropped: Stages 2–4 do not read them). Synthetic: urban at KITTI's
+scan-line order, per-point times dropped: Stages 2–4 do not read them) and scenes 1 and 2 together
+(``pjlab-12``: one rig, their calibrations checked to be equal). Synthetic: urban at KITTI's
 pixel scale (1242x375, f = 721.5) and vineyard at the BLT ZED's half resolution (960x540, f = 527),
 10-frame sequences of unseen seeds, the world's own wind, once with the camera exposing with the
 LiDAR (``camera_offset_s = 0``) and once with the world's default offset (5 ms urban, 20 ms vineyard);
@@ -130,6 +131,7 @@ SUPERSAMPLED = {"supersample": 4, "redraw_px": 4.0}
 grid and averaged, and kept while the view turns less than 4 px (``edge.supersample``,
 ``edge.redraw_px``)."""
 ALL6 = "kitti-raw-0928-all6"
+PJLAB12 = "pjlab-12"
 KITTI_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
 ZED_HALF = {"width": 960, "height": 540, "fx": 527.0, "fy": 527.0, "cx": 479.5, "cy": 269.5}
 SYNTH_CAMERAS = {"urban": KITTI_RES, "vineyard": ZED_HALF}
@@ -307,22 +309,26 @@ def real_datasets(work: Path, notes: dict) -> Iterator[Dataset]:
     if root is None:
         print("real fixtures absent (../shared/realdata, SUPPORTNET_REALDATA): skipped")
         return
-    raw: dict[str, tuple[list[Frame], np.ndarray]] = {}
+    loaded: dict[str, tuple[list[Frame], np.ndarray]] = {}
     for fixture in check_fixtures(root, work):
         frames, T_ref, _ = _loaded(fixture.path, fixture.camera)
-        if fixture.name.startswith("kitti-raw"):
-            raw[fixture.name] = (frames, T_ref)
+        loaded[fixture.name] = (frames, T_ref)
         yield Dataset(fixture.name, lambda _run, f=frames, T=T_ref: (f, T, {}), len(frames))
-    (a, T_a), (b, T_b) = raw["kitti-raw-0928"], raw["kitti-raw-0928-more"]
-    same = bool(np.array_equal(T_a, T_b) and np.array_equal(a[0].K, b[0].K))
-    notes[ALL6] = (
-        f"{len(a)} + {len(b)} frames of the two folders; their calibrations (T_cam_lidar and K) are "
-        + ("equal" if same else "NOT equal: the first folder's is the reference")
-    )
-    if not same:
-        console.print(f"[red]{notes[ALL6]}[/red]")
-    merged = [*a, *b]
-    yield Dataset(ALL6, lambda _run: (merged, T_a, {}), len(merged))
+    for name, parts, what in (
+        (ALL6, ("kitti-raw-0928", "kitti-raw-0928-more"), "frames of the two folders"),
+        (PJLAB12, ("pjlab-1", "pjlab-2"), "scenes of one rig"),
+    ):
+        (a, T_a), (b, T_b) = (loaded[part] for part in parts)
+        same = bool(np.array_equal(T_a, T_b) and np.array_equal(a[0].K, b[0].K))
+        same = same and all(np.array_equal(f.calibration.distortion, a[0].calibration.distortion) for f in b)
+        notes[name] = (
+            f"{len(a)} + {len(b)} {what}; their calibrations (T_cam_lidar, K and distortion) are "
+            + ("equal" if same else "NOT equal: the first one's is the reference")
+        )
+        if not same:
+            console.print(f"[red]{notes[name]}[/red]")
+        merged = [*a, *b]
+        yield Dataset(name, lambda _run, m=merged, T=T_a: (m, T, {}), len(merged))
 
 
 def synthetic_datasets(seeds: tuple[int, ...] = SYNTH_SEEDS) -> Iterator[Dataset]:

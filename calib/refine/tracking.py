@@ -58,13 +58,14 @@ class OnlineConfig(BaseModel):
         1.0, description="how far δt may move between windows"
     )
     time_offset_rate_initial_std_ppm: NonNegativeFloat = Field(
-        1000.0,
+        0.0,
         description="how fast the clock may drift at the start (ppm: µs of δt per second; 0: δt is a "
-        "random walk alone); the rate is tracked, so between the turns that tell δt it moves on at "
-        "the rate the turns showed",
+        "random walk alone, the default); where set, the rate is tracked, so between the turns "
+        "that tell δt it moves on at the rate they showed. Off by default: on a drive with one "
+        "turn its uncertainty widened δt's gate and a wrong turn window got in (README, online)",
     )
     time_offset_rate_process_std_ppm: NonNegativeFloat = Field(
-        50.0, description="how far that rate may change between windows"
+        0.0, description="how far that rate may change between windows"
     )
     time_offset_floor_ms: NonNegativeFloat = Field(
         1.0,
