@@ -65,6 +65,36 @@ def test_one_degree_off_is_bad_and_the_suggestion_comes_back(small_urban, draw):
     assert calibration_error(result.suggested_T_cam_lidar, T_ref).rotation_deg < 0.4
 
 
+def test_the_neighbours_are_spread_over_the_sphere():
+    from calib.verify import _sphere
+
+    v = _sphere(96)
+    assert v.shape == (96, 3) and torch.allclose(v.norm(dim=1), torch.ones(96, dtype=torch.float64))
+    assert v.mean(0).norm() < 0.02  # balanced: no direction favoured
+    assert (v @ v.T - 2 * torch.eye(96)).max() < 0.99  # no two alike
+
+
+def test_the_reference_is_a_peak_and_one_degree_of_yaw_is_not(small_urban):
+    """Known answer: under the true extrinsic almost no neighbour 1° away scores higher; turned
+    1° about the LiDAR's vertical (the image moves sideways), the neighbours turned back do."""
+    from calib.match.contours import ContourScore
+    from calib.verify import _peak_share
+
+    config = CheckConfig()
+    T_ref = torch.as_tensor(small_urban[0].calibration.T_cam_lidar)
+    at_truth = _peak_share(ContourScore(small_urban, T_ref.numpy(), config.contours), T_ref, config)
+    assert at_truth < config.peak_suspect
+    T_yaw = T_ref.clone()
+    T_yaw[:3, :3] = T_ref[:3, :3] @ torch.as_tensor(_rotation_z(1.0))
+    off = _peak_share(ContourScore(small_urban, T_yaw.numpy(), config.contours), T_yaw, config)
+    assert off >= config.peak_bad
+
+
+def _rotation_z(deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
 def test_refusals(small_urban):
     T = small_urban[0].calibration.T_cam_lidar.copy()
     T[0, 0] = 2.0
@@ -72,6 +102,8 @@ def test_refusals(small_urban):
         check_extrinsic(small_urban, T)
     with pytest.raises(ValueError, match="m_good"):
         CheckConfig(m_good=6.0, m_bad=5.0)
+    with pytest.raises(ValueError, match="peak_suspect"):
+        CheckConfig(peak_suspect=0.2, peak_bad=0.1)
     empty = [Frame(small_urban[0].image, small_urban[0].points[:10], small_urban[0].calibration)]
     with pytest.raises(NumericalError, match="too few contour samples"):
         check_extrinsic(empty, small_urban[0].calibration.T_cam_lidar)
