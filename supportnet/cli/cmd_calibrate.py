@@ -154,6 +154,7 @@ def _check_summary(result: CheckResult) -> dict:
         "best_score",
         "alignment",
         "significance",
+        "peak_share",
         "detectable_error",
         "suggested_correction",
         "suggested_T_cam_lidar",
