@@ -58,6 +58,7 @@ def one_check(frames: list[Frame], T: np.ndarray, T_ref: np.ndarray, config: Che
         "significance": result.significance["joint"],
         "significance_rotation": result.significance["rotation"],
         "significance_translation": result.significance["translation"],
+        "peak_share": result.peak_share,
         "score": result.score,
         "alignment": result.alignment,
         "correction_deg": c.rotation_deg,
