@@ -376,6 +376,7 @@ class CheckResult:
             "covariance_order": list(AXES),
             "search_at_bound": self.at_bound,
             "peak_share": self.peak_share,
+            "peak_shell_deg": self.config.get("peak_shell_deg"),
             "frames": [f.to_dict() for f in self.frames],
             "reference": reference,
             "runtime_s": self.runtime_s,

@@ -155,6 +155,7 @@ def _check_summary(result: CheckResult) -> dict:
         "alignment",
         "significance",
         "peak_share",
+        "peak_shell_deg",
         "detectable_error",
         "suggested_correction",
         "suggested_T_cam_lidar",

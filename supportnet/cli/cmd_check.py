@@ -74,10 +74,11 @@ def check_line(check: dict) -> str:
     ``verdict``, ``suggested_correction``, ``significance`` and ``detectable_error``)."""
     c, d = check["suggested_correction"], check["detectable_error"]
     peak = check.get("peak_share")
+    shell = check.get("peak_shell_deg")
     return (
         f"{check['verdict']}: best fit nearby {c['rotation_deg']:.2f}° / {c['translation_cm']:.1f} cm away "
         f"(significance {check['significance']['joint']:.1f})"
-        + ("" if peak is None else f", {peak:.0%} of its neighbours 1° away align better")
+        + ("" if peak is None else f", {peak:.0%} of its neighbours {shell:g}° away align better")
         + f"; smallest error this data shows {_fmt(d['rotation_deg'], '°', 2)} / "
         f"{_fmt(d['translation_cm'], 'cm', 1)}"
     )
@@ -104,7 +105,7 @@ def _markdown(output: dict) -> str:
         f"| suggested correction | {c['rotation_deg']:.3f}° / {c['translation_cm']:.2f} cm |",
         f"| significance (joint; rotation / translation alone) | {s['joint']:.1f}; "
         f"{s['rotation']:.1f} / {s['translation']:.1f} |",
-        f"| share of its neighbours {output['config']['peak_shell_deg']:g}° away that align better "
+        f"| share of its neighbours {output['peak_shell_deg']:g}° away that align better "
         f"| {output['peak_share']:.0%} |",
         f"| smallest error this data shows | {_fmt(d['rotation_deg'], '°', 2)} / "
         f"{_fmt(d['translation_cm'], 'cm', 1)} |",
