@@ -80,6 +80,8 @@ CHECK_SCHEMA_VERSION = 1
 """Version of the ``check.json`` layout."""
 
 Verdict = Literal["good", "suspect", "bad"]
+VERDICTS: tuple[Verdict, ...] = ("good", "suspect", "bad")
+"""The verdicts, from the best to the worst."""
 
 
 class CheckConfig(BaseModel):
@@ -227,6 +229,11 @@ def _bootstrap(
         start = T_best @ se3_exp(torch.as_tensor(rng.normal(size=6)) * scale)
         out.append(_twist(T, _search(score, T, config, counts[score.block], start=start)))
     return np.array(out)
+
+
+def _grade(value: float, suspect: float, bad: float) -> Verdict:
+    """``bad`` from ``bad`` on, ``suspect`` from ``suspect`` on, else ``good``."""
+    return "bad" if value >= bad else "suspect" if value >= suspect else "good"
 
 
 def _sphere(n: int) -> torch.Tensor:
@@ -454,24 +461,20 @@ def _check(
         or correction.translation_cm >= config.translation_tolerance_cm
     )
     m = significance["joint"]
-    verdict: Verdict = (
-        "good" if not beyond or m < config.m_good else "bad" if m >= config.m_bad else "suspect"
-    )
+    bootstrap_verdict = _grade(m, config.m_good, config.m_bad) if beyond else "good"
     peak_share = _peak_share(score, T, config)
-    peak_verdict: Verdict = (
-        "bad" if peak_share >= config.peak_bad else "suspect" if peak_share >= config.peak_suspect else "good"
-    )
-    order = ("good", "suspect", "bad")
-    verdict = max(verdict, peak_verdict, key=order.index)
+    peak_verdict = _grade(peak_share, config.peak_suspect, config.peak_bad)
+    verdict = max(bootstrap_verdict, peak_verdict, key=VERDICTS.index)
     size = f"{correction.rotation_deg:.2f}° / {correction.translation_cm:.1f} cm"
     tolerance = f"{config.rotation_tolerance_deg:g}° / {config.translation_tolerance_cm:g} cm"
     if not beyond:
         reasons = [f"the best fit nearby is {size} away, within the tolerance of {tolerance}"]
     else:
         reasons = [
-            f"the best fit nearby is {size} away, {m:.1f} times its bootstrap scatter ({verdict}: bad "
-            f"from {config.m_bad:g}, suspect from {config.m_good:g}; rotation alone "
-            f"{significance['rotation']:.1f}, translation alone {significance['translation']:.1f})"
+            f"the best fit nearby is {size} away, {m:.1f} times its bootstrap scatter "
+            f"({bootstrap_verdict}: bad from {config.m_bad:g}, suspect from {config.m_good:g}; "
+            f"rotation alone {significance['rotation']:.1f}, "
+            f"translation alone {significance['translation']:.1f})"
         ]
     if at_bound:
         reasons.append("the search reached its bound: the error may be larger than the suggested correction")

@@ -71,16 +71,14 @@ def _fmt(value: float | None, unit: str, digits: int) -> str:
 
 def check_line(check: dict) -> str:
     """One line of a check's answer, from :meth:`CheckResult.to_dict` (or a dict with its
-    ``verdict``, ``suggested_correction``, ``significance`` and ``detectable_error``)."""
+    ``verdict``, ``suggested_correction``, ``significance``, ``peak_share``, ``peak_shell_deg``
+    and ``detectable_error``)."""
     c, d = check["suggested_correction"], check["detectable_error"]
-    peak = check.get("peak_share")
-    shell = check.get("peak_shell_deg")
     return (
         f"{check['verdict']}: best fit nearby {c['rotation_deg']:.2f}° / {c['translation_cm']:.1f} cm away "
-        f"(significance {check['significance']['joint']:.1f})"
-        + ("" if peak is None else f", {peak:.0%} of its neighbours {shell:g}° away align better")
-        + f"; smallest error this data shows {_fmt(d['rotation_deg'], '°', 2)} / "
-        f"{_fmt(d['translation_cm'], 'cm', 1)}"
+        f"(significance {check['significance']['joint']:.1f}), {check['peak_share']:.0%} of its "
+        f"neighbours {check['peak_shell_deg']:g}° away align better; smallest error this data shows "
+        f"{_fmt(d['rotation_deg'], '°', 2)} / {_fmt(d['translation_cm'], 'cm', 1)}"
     )
 
 

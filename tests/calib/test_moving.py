@@ -167,12 +167,28 @@ def test_without_moving_drops_them_from_the_frames_that_have_scans_around():
     assert [int(m.sum()) for m in masks] == [0]
 
 
+def _without_shadow(**time_offset):
+    """A seven-frame calibrate config with no moving car's shadow left out and ``time_offset``'s
+    keys set."""
+    from calib.refine.passes import CalibrateConfig
+
+    base = CalibrateConfig(frames=7)
+    return base.model_copy(
+        update={
+            "outliers": base.outliers.model_copy(
+                update={"moving": base.outliers.moving.model_copy(update={"shadow_deg": 0.0})}
+            ),
+            "time_offset": base.time_offset.model_copy(update=time_offset),
+        }
+    )
+
+
 @pytest.mark.parametrize(("mode", "initial_s"), [("estimate", 0.0), ("fixed", 0.0), ("fixed", 0.02)])
 def test_the_calibrator_leaves_them_out_where_the_time_offset_is_estimated_or_not_0(
     monkeypatch, mode, initial_s
 ):
     import calib.pipeline as pipeline
-    from calib.refine.passes import CalibrateConfig, PassesResult
+    from calib.refine.passes import PassesResult
 
     seen = []
 
@@ -181,18 +197,12 @@ def test_the_calibrator_leaves_them_out_where_the_time_offset_is_estimated_or_no
         return PassesResult(T_init, np.eye(6) * 1e-6, [], 100, time_offset_s=timing.offset_s)
 
     monkeypatch.setattr(pipeline, "refine_passes", recording)
-    base = CalibrateConfig(frames=7)
-    config = base.model_copy(
+    config = _without_shadow(mode=mode, initial_s=initial_s, min_speed_spread_mps=1e-9, restarts_ms=())
+    config = config.model_copy(
         update={
             "finest_focal_px": 100.0,
             "pyramid_focals_px": (),
-            "coarse": base.coarse.model_copy(update={"enabled": False}),
-            "outliers": base.outliers.model_copy(
-                update={"moving": base.outliers.moving.model_copy(update={"shadow_deg": 0.0})}
-            ),
-            "time_offset": base.time_offset.model_copy(
-                update={"mode": mode, "initial_s": initial_s, "min_speed_spread_mps": 1e-9, "restarts_ms": ()}
-            ),
+            "coarse": config.coarse.model_copy(update={"enabled": False}),
         }
     )
     seq = _frames([-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0])
@@ -215,17 +225,8 @@ def test_the_calibrator_leaves_them_out_where_the_time_offset_is_estimated_or_no
 @pytest.mark.parametrize("offset_known", [True, False])
 def test_an_online_window_leaves_them_out_at_its_first_guess_of_0(offset_known):
     from calib.pipeline import camera_time
-    from calib.refine.passes import CalibrateConfig
 
-    base = CalibrateConfig(frames=7)
-    config = base.model_copy(
-        update={
-            "outliers": base.outliers.model_copy(
-                update={"moving": base.outliers.moving.model_copy(update={"shadow_deg": 0.0})}
-            ),
-            "time_offset": base.time_offset.model_copy(update={"mode": "fixed", "initial_s": 0.0}),
-        }
-    )
+    config = _without_shadow(mode="fixed", initial_s=0.0)
     seq = _frames([-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0])
     still = {k: ScanMotion.still() for k in range(7)}
     timing, _, frames, lost = camera_time(
