@@ -66,6 +66,7 @@ def one_check(frames: list[Frame], T: np.ndarray, T_ref: np.ndarray, config: Che
         "suggested_error": calibration_error(result.suggested_T_cam_lidar, T_ref).to_dict(),
         "detectable_deg": d["rotation_deg"],
         "detectable_cm": d["translation_cm"],
+        "detectable_per_axis": {k: d[k] for k in ("per_axis", "bootstrap_per_axis", "peak_per_axis")},
         "seconds": result.runtime_s,
     }
 

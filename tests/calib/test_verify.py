@@ -39,8 +39,12 @@ def test_reference_is_good_and_its_result_is_strict_json(small_urban):
     stored = _strict(json.dumps(result.to_dict(), allow_nan=False))
     assert stored["schema_version"] == CHECK_SCHEMA_VERSION and stored["verdict"] == "good"
     assert stored["covariance_order"] == list(AXES)
-    assert set(stored["detectable_error"]) == {"rotation_deg", "translation_cm", "per_axis"}
-    assert set(stored["detectable_error"]["per_axis"]) == set(AXES)
+    detectable = stored["detectable_error"]
+    per_test = {"bootstrap_per_axis", "peak_per_axis"}
+    assert set(detectable) == {"rotation_deg", "translation_cm", "per_axis", *per_test}
+    for name in AXES:  # the smaller of the two tests', where the peak test's ladder reached bad
+        peak, bootstrap = detectable["peak_per_axis"][name], detectable["bootstrap_per_axis"][name]
+        assert detectable["per_axis"][name] == (bootstrap if peak is None else min(peak, bootstrap))
     assert len(stored["frames"]) == 2 and stored["frames"][0]["samples"]["vertical_edges"] > 50
     assert stored["reference"]["error"]["rotation_deg"] == pytest.approx(0.0, abs=1e-9)
     assert np.asarray(stored["suggested_T_cam_lidar"]).shape == (4, 4)
@@ -78,16 +82,38 @@ def test_the_reference_is_a_peak_and_one_degree_of_yaw_is_not(small_urban):
     """Known answer: under the true extrinsic almost no neighbour 1° away scores higher; turned
     1° about the LiDAR's vertical (the image moves sideways), the neighbours turned back do."""
     from calib.match.contours import ContourScore
-    from calib.verify import _peak_share
+    from calib.verify import _peak_shares
 
     config = CheckConfig()
     T_ref = torch.as_tensor(small_urban[0].calibration.T_cam_lidar)
-    at_truth = _peak_share(ContourScore(small_urban, T_ref.numpy(), config.contours), T_ref, config)
-    assert at_truth < config.peak_suspect
+    at_truth = _peak_shares(ContourScore(small_urban, T_ref.numpy(), config.contours), T_ref[None], config)
+    assert at_truth.shape == (1,) and at_truth[0] < config.peak_suspect
     T_yaw = T_ref.clone()
     T_yaw[:3, :3] = T_ref[:3, :3] @ torch.as_tensor(_rotation_z(1.0))
-    off = _peak_share(ContourScore(small_urban, T_yaw.numpy(), config.contours), T_yaw, config)
+    score = ContourScore(small_urban, T_yaw.numpy(), config.contours)
+    off = _peak_shares(score, T_yaw[None], config)[0]
     assert off >= config.peak_bad
+    # a batch gives each extrinsic's own share
+    assert torch.equal(_peak_shares(score, torch.stack([T_ref, T_yaw]), config)[1], off)
+
+
+def test_the_peak_test_shows_a_degree_of_yaw_and_the_ladder_can_be_left_out(small_urban):
+    """Known answer: 1° of yaw is called bad (the test above), so the smallest yaw the peak test
+    shows on the ladder 0.5°, 1°, 2° is at most 1°; without a ladder the bootstrap's stands."""
+    from calib.match.contours import ContourScore
+    from calib.verify import _peak_detectable
+
+    config = CheckConfig()
+    T_ref = small_urban[0].calibration.T_cam_lidar
+    score = ContourScore(small_urban, T_ref, config.contours)
+    found = _peak_detectable(score, torch.as_tensor(T_ref), config)
+    assert set(found) == set(AXES)
+    assert found["rotation_z_deg"] in (0.5, 1.0)
+    assert all(v is None or v in (0.5, 1.0, 2.0) for v in list(found.values())[:3])
+    assert all(v is None or v in (10.0, 20.0, 40.0) for v in list(found.values())[3:])
+    result = check_extrinsic(small_urban, T_ref, CheckConfig(peak_ladder=0))
+    assert result.detectable["per_axis"] == result.detectable["bootstrap_per_axis"]
+    assert set(result.detectable["peak_per_axis"].values()) == {None}
 
 
 def _rotation_z(deg: float) -> np.ndarray:
