@@ -58,7 +58,7 @@ def load_checkpoint(ckpt: Path) -> tuple[nn.Module, Contract]:
             contract = net.contract(hparams["near_m"], hparams["working_focal_px"])
         else:
             net = SupportUNet(ModelConfig(**hparams["model"]))
-            contract = net.contract(hparams.get("target", "agreement"))
+            contract = net.contract(hparams.get("target", "agreement"), hparams.get("working_focal_px"))
         weights = {k.removeprefix("net."): v for k, v in state["state_dict"].items() if k.startswith("net.")}
     except Exception as exc:  # torch raises many types for a file that is not a checkpoint
         raise DataError(

@@ -56,7 +56,11 @@ def run_train(config: TrainConfig, overwrite: bool = False, console: Console | N
     """Train the support predictor; returns ``summary.json``'s content (with ``best_checkpoint``)."""
     claim_output(Path(config.out), overwrite, _inputs(config))
     module = SupportModule(
-        config.model.model_dump(), config.optim.model_dump(), config.augment.model_dump(), config.data.target
+        config.model.model_dump(),
+        config.optim.model_dump(),
+        config.augment.model_dump(),
+        config.data.target,
+        config.data.working_focal_px,
     )
     with removed_on_failure(_partial(config)):
         return _fit(config, SupportDataModule(config.data), module, "val/pearson", "max", overwrite, console)

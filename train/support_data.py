@@ -3,6 +3,8 @@
 Maps are refused unless made from the same dataset (``summary.json``'s fingerprint); the
 sequences and their fingerprints are saved in every checkpoint (:meth:`SupportDataModule.state_dict`).
 
+Frames of a longer focal length than ``working_focal_px`` are resampled down to it with their maps
+(:func:`~calib.match.correspondences.working_view`), as the predictor resamples what it is given.
 Everything is loaded into memory once (a few hundred frames of 624x188 fit easily); training
 draws random crops, validation uses whole frames. Augmentation runs on the batch in
 :class:`train.support_module.SupportModule` (kornia), so it runs on the accelerator too.
@@ -13,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import lightning as L
 import numpy as np
 import torch
@@ -20,6 +23,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from calib.data import open_dataset
 from calib.errors import DataError
+from calib.match.correspondences import working_view
 from calib.support.map_files import check_maps_fingerprint, dataset_identity, load_frame_maps
 from supportnet.nets.map_targets import offline_target
 from train.loaders import loader
@@ -71,14 +75,21 @@ def load_source(source: Source, config: DataConfig) -> FrameTargets:
         stride = config.frame_stride if source.split == "train" else config.val_frame_stride
         for i in range(0, len(seq), stride):
             stored = load_frame_maps(maps, i)
-            image = seq[i].image
-            if stored["raw"].shape != image.shape[:2]:
+            frame = seq[i]
+            if stored["raw"].shape != frame.image_size:
                 path = maps / "frames" / f"{i:06d}.npz"
-                raise DataError(path, f"map is {stored['raw'].shape}, the image {image.shape[:2]}")
+                raise DataError(path, f"map is {stored['raw'].shape}, the image {frame.image_size}")
             target, weight = offline_target(
                 stored["raw"], stored["coverage"], config.target, config.min_coverage, config.weight_cap
             )
-            images.append(image)
+            view = working_view(frame, config.working_focal_px)
+            size = view.image.shape[1::-1]
+            if size != frame.image.shape[1::-1]:  # the maps with the image: pixel means, the target weighted
+                weighted, weight = (
+                    cv2.resize(x, size, interpolation=cv2.INTER_AREA) for x in (target * weight, weight)
+                )
+                target = np.where(weight > 0, weighted / np.maximum(weight, 1e-12), 0).astype(np.float32)
+            images.append(view.image)
             targets.append(target)
             weights.append(weight)
     if not images:

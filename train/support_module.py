@@ -39,14 +39,22 @@ class SupportModule(L.LightningModule):
     Args:
         model: network config. optim: learning rate and weight decay. augment: probabilities.
         target: which offline map is learned (stored in the exported contract).
+        working_focal_px: the focal length the data's images were resampled to (stored there too).
     """
 
-    def __init__(self, model: dict, optim: dict, augment: dict, target: str = "agreement") -> None:
+    def __init__(
+        self,
+        model: dict,
+        optim: dict,
+        augment: dict,
+        target: str = "agreement",
+        working_focal_px: float | None = None,
+    ) -> None:
         super().__init__()
         self.save_hyperparameters()
         self.net = SupportUNet(ModelConfig(**model))
         self.optim_config = OptimConfig(**optim)
-        self.contract = self.net.contract(target)
+        self.contract = self.net.contract(target, working_focal_px)
         aug = AugmentConfig(**augment)
         # geometric: image, target and weight stacked, so they move together
         self.geometric = KA.AugmentationSequential(

@@ -44,6 +44,14 @@ class DataConfig(_Group):
         description="Eq. 2 normalised by its peak (Stage 4's map; held-out r 0.69 against 0.59 for "
         "agreement on the vineyard), or the per-frame agreement Σ aG / Σ G",
     )
+    working_focal_px: float = Field(
+        360.8,
+        gt=0,
+        description="frames of a longer focal length are resampled down to it, their maps with them, and "
+        "the export carries it, so the predictor sees every camera's images at this scale (the small "
+        "synthetic worlds' focal length; README: on the vineyard at 960x540, f = 527, the shipped model's "
+        "per-frame r 0.67 at this scale against 0.58 at the image's own)",
+    )
     min_coverage: float = Field(0.5, gt=0, description="no target where the coverage is below this")
     weight_cap: float = Field(4.0, gt=0, description="the loss weight is the coverage, capped here")
     frame_stride: int = Field(1, ge=1, description="train on every k-th frame (neighbours are alike)")

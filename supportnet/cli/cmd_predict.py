@@ -29,6 +29,7 @@ from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar,
 from supportnet.nets.map_targets import agreement_scores, offline_target
 from supportnet.report.pictures import colour_bar, colourise, map_picture
 from supportnet.runtime.support_predictor import SHIPPED_MODEL, SupportPredictor
+from supportnet.runtime.support_sources import predict_frame
 
 __all__ = ["run_predict"]
 
@@ -76,9 +77,10 @@ def run_predict(
             with progress_bar(f"predict {seq.name}", console) as progress:
                 task = progress.add_task("predict", total=len(seq))
                 for i in range(len(seq)):
-                    image = seq[i].image
+                    frame = seq[i]
+                    image = frame.image
                     t0 = time.perf_counter()
-                    support = predictor.predict(image)[0]
+                    support = predict_frame(predictor, frame)
                     seconds.append(time.perf_counter() - t0)
                     total = support.astype(np.float64) if total is None else total + support
                     np.savez_compressed(tmp / "frames" / f"{i:06d}.npz", support=support)

@@ -75,14 +75,14 @@ class SupportUNet(nn.Module):
         """Input sizes are padded to a multiple of this."""
         return self.config.stem_stride * 2**self.config.depth
 
-    def contract(self, target: str = "agreement") -> Contract:
-        """The pre-processing contract an export of this network carries (its config included)."""
-        return Contract(
-            stride=self.stride,
-            target=target,
-            output_stride=self.config.stem_stride,
-            extra={"model": self.config.model_dump()},
-        )
+    def contract(self, target: str = "agreement", working_focal_px: float | None = None) -> Contract:
+        """The pre-processing contract an export of this network carries (its config included),
+        with the focal length of the images it learned from where known (``working_focal_px``: a
+        predictor resamples an image of a longer focal length down to it first)."""
+        extra: dict = {"model": self.config.model_dump()}
+        if working_focal_px is not None:
+            extra["working_focal_px"] = float(working_focal_px)
+        return Contract(stride=self.stride, target=target, output_stride=self.config.stem_stride, extra=extra)
 
     def coarse(self, image: torch.Tensor) -> torch.Tensor:
         """Logits at ``1/stem_stride`` of the input padded to a multiple of :attr:`stride`."""

@@ -7,15 +7,17 @@ from __future__ import annotations
 from collections import OrderedDict
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from calib.data.types import Frame
 from calib.errors import ConfigError
+from calib.match.correspondences import working_view
 from calib.support.map_files import load_sequence_maps
 from calib.support.source import MapSupport, SupportSource, UniformSupport
 from supportnet.runtime.support_predictor import SHIPPED_MODEL, SupportPredictor
 
-__all__ = ["PredictedSupport", "offline_maps_folders", "parse_supports", "resolve_support"]
+__all__ = ["PredictedSupport", "offline_maps_folders", "parse_supports", "predict_frame", "resolve_support"]
 
 
 class PredictedSupport:
@@ -35,10 +37,26 @@ class PredictedSupport:
     def __call__(self, frame: Frame) -> np.ndarray:
         key = (frame.index, frame.name, id(frame.image))
         if key not in self._maps:
-            self._maps[key] = self.predictor.predict(frame.image)[0]
+            self._maps[key] = predict_frame(self.predictor, frame)
             while len(self._maps) > self._remember:
                 self._maps.popitem(last=False)
         return self._maps[key]
+
+
+def predict_frame(predictor: SupportPredictor, frame: Frame) -> np.ndarray:
+    """``(H, W)`` the support of ``frame``'s image. Where the model's contract names the focal length
+    it learned at (``working_focal_px``) and the frame's is longer, the image is resampled down to it
+    (:func:`~calib.match.correspondences.working_view`) and the map back up (bilinear), so a model
+    trained on 624x188 frames sees a full-resolution camera's at its own scale."""
+    focal = predictor.contract.extra.get("working_focal_px")
+    if focal is None:
+        return predictor.predict(frame.image)[0]
+    view = working_view(frame, float(focal))
+    support = predictor.predict(view.image)[0]
+    H, W = frame.image_size
+    if support.shape == (H, W):
+        return support
+    return cv2.resize(support, (W, H), interpolation=cv2.INTER_LINEAR)
 
 
 def resolve_support(spec: str | SupportSource, support_map: str = "support") -> SupportSource:

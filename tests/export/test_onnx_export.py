@@ -1,16 +1,19 @@
 import json
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import onnx
 import pytest
 import torch
 
+from calib.data.types import Calibration, Frame
 from calib.errors import ConfigError, DataError
 from export.onnx_export import CHECK_SHAPE, export_network, export_onnx, load_checkpoint
 from supportnet.nets.contract import METADATA_KEY
 from supportnet.nets.support_unet import ModelConfig, SupportUNet
 from supportnet.runtime.support_predictor import SupportPredictor
+from supportnet.runtime.support_sources import predict_frame
 
 CONFIG = ModelConfig(width=4, depth=2, stem_stride=2)
 
@@ -28,7 +31,11 @@ def ckpt(tmp_path_factory):
     path = tmp_path_factory.mktemp("ckpt") / "model.ckpt"
     torch.save(
         {
-            "hyper_parameters": {"model": CONFIG.model_dump(), "target": "agreement"},
+            "hyper_parameters": {
+                "model": CONFIG.model_dump(),
+                "target": "agreement",
+                "working_focal_px": 40.0,
+            },
             "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
         },
         path,
@@ -68,7 +75,29 @@ def test_metadata_round_trip(exported, ckpt):
     assert (
         stored["stride"] == 8 and stored["target"] == "agreement" and stored["extra"]["model"]["width"] == 4
     )
+    assert stored["extra"]["working_focal_px"] == 40.0
     assert SupportPredictor(out).contract == load_checkpoint(ckpt)[1]
+
+
+def _frame(focal: float, size: tuple[int, int] = (60, 96)) -> Frame:
+    image = np.random.default_rng(2).integers(0, 256, (*size, 3), dtype=np.uint8)
+    K = np.array([[focal, 0, size[1] / 2], [0, focal, size[0] / 2], [0, 0, 1]])
+    return Frame(image, np.zeros((0, 4), np.float32), Calibration(K, image_size=size))
+
+
+def test_a_frame_is_predicted_at_the_focal_length_the_model_learned(exported):
+    """Known answer: the contract says 40 px. A frame at 80 px is predicted on its image halved
+    (working_view) and the map brought back to its size; one at 40 px or less as it stands."""
+    out, _ = exported
+    predictor = SupportPredictor(out)
+    near = _frame(40.0)
+    assert np.array_equal(predict_frame(predictor, near), predictor.predict(near.image)[0])
+    far = _frame(80.0)
+    support = predict_frame(predictor, far)
+    halved = predictor.predict(cv2.resize(far.image, (48, 30), interpolation=cv2.INTER_AREA))[0]
+    assert support.shape == (60, 96) and support.dtype == np.float32
+    assert np.allclose(support, cv2.resize(halved, (96, 60), interpolation=cv2.INTER_LINEAR), atol=1e-6)
+    assert not np.allclose(support, predictor.predict(far.image)[0], atol=1e-3)
 
 
 def test_export_refuses_what_it_should(exported, ckpt, tmp_path):

@@ -4,6 +4,8 @@ refused; the sequences' fingerprints go into every checkpoint (the data module's
 import json
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 from calib.data import open_dataset
@@ -45,6 +47,24 @@ def test_maps_without_a_fingerprint_are_refused(sources, tmp_path):
             load_source(Source(**vineyard), DataConfig(sources=sources))
     finally:
         summary.write_text(json.dumps(stored))
+
+
+def test_frames_of_a_longer_focal_length_are_resampled_with_their_maps(sources):
+    """Known answer: the tiny worlds render at 360.8 px; at a working focal length of half that,
+    every image, target and weight is halved (2x2 pixel means), the weighted target keeping its
+    mean; at their own focal length nothing is resampled."""
+    vineyard, _ = sources
+    full = load_source(Source(**vineyard), DataConfig(sources=sources))
+    half = load_source(Source(**vineyard), DataConfig(sources=sources, working_focal_px=180.4))
+    (n, H, W), (h, w) = full.target.shape, half.target.shape[1:]
+    assert (h, w) == (H // 2, W // 2) and half.images.shape == (n, h, w, 3) and half.weight.shape == (n, h, w)
+    with open_dataset(vineyard["data"], sequence=vineyard["sequence"]) as seq:
+        assert np.array_equal(full.images[0], seq[0].image)
+    assert np.array_equal(half.images[0], cv2.resize(full.images[0], (w, h), interpolation=cv2.INTER_AREA))
+    assert np.allclose(half.weight[0], cv2.resize(full.weight[0], (w, h), interpolation=cv2.INTER_AREA))
+    before = (full.target * full.weight).sum((1, 2)) / full.weight.sum((1, 2))
+    after = (half.target * half.weight).sum((1, 2)) / half.weight.sum((1, 2))
+    assert np.allclose(before, after, rtol=1e-4)
 
 
 def test_the_data_module_state_names_each_sequence_and_its_fingerprint(sources):
