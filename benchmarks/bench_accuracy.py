@@ -3,12 +3,13 @@ both worlds, paired runs from a 10 cm / 2° error; and Stage 1 from motion on 30
 
 Everything is synthesised in a temporary folder with fixed seeds: Stage 4 on the held-out seed 9
 (80 frames, the shipped predictor never saw it), Stage 1 on seed 21, all at the small 624x188 size
-the shipped predictor was trained on (``small=True``). Prints a table and writes
-benchmarks/results/accuracy.json.
+the shipped predictor was trained on (``small=True``), or with ``--full-res`` Stage 4 at the
+worlds' real pixel scale (urban 1242x375, vineyard 960x540; the predictor then sees its images at
+twice the scale it was trained at). Prints a table and writes benchmarks/results/accuracy.json.
 
     python benchmarks/bench_accuracy.py [--runs 10] [--stage1-frames 300] [--camera-offset-ms MS]
         [--model OTHER.onnx] [--time-offset estimate|off|fixed:MS] [--supports uniform,offline,onnx]
-        [--worlds vineyard,urban] [--name accuracy]
+        [--worlds vineyard,urban] [--full-res] [--name accuracy]
 
 The table's last column is each support's median translation error over uniform's (the paper's
 Experiment 3 asks whether SGIS lowers it by at least 15 %: a ratio of 0.85 or less).
@@ -46,9 +47,10 @@ def stage4(
     model: Path | None,
     time_offset: str,
     supports: str,
+    small: bool,
 ) -> dict:
     data = tmp / world
-    run_synth(world, 80, 9, data, "09", console=console, small=True, camera_offset_ms=offset_ms)
+    run_synth(world, 80, 9, data, "09", console=console, small=small, camera_offset_ms=offset_ms)
     maps = run_maps(data, "09", tmp / f"maps_{world}", load_maps_config(), console=console)
     supports = supports.replace("offline", f"offline:{maps}") + (f",onnx:{model}" if model else "")
     config = load_calibrate_config()
@@ -97,6 +99,7 @@ def main() -> None:
     parser.add_argument("--time-offset", default="estimate", help="Stage 4's: off, estimate or fixed:MS")
     parser.add_argument("--supports", default="uniform,offline,onnx", help="offline: seed 9's maps")
     parser.add_argument("--worlds", default=",".join(WORLDS))
+    parser.add_argument("--full-res", action="store_true", help="Stage 4 at the worlds' real pixel scale")
     parser.add_argument("--name", default="accuracy", help="results/NAME.json")
     args = parser.parse_args()
     console = Console(stderr=True)
@@ -112,6 +115,7 @@ def main() -> None:
                     args.model,
                     args.time_offset,
                     args.supports,
+                    small=not args.full_res,
                 )
                 for w in args.worlds.split(",")
             },
@@ -121,6 +125,7 @@ def main() -> None:
         }
     rows["runs"], rows["stage1_frames"] = args.runs, args.stage1_frames
     rows["camera_offset_ms"], rows["time_offset"] = args.camera_offset_ms, args.time_offset
+    rows["full_res"] = args.full_res
     print(f"Stage 4 from 10 cm / 2°, {args.runs} paired runs (mean / median)")
     head = ("t cm mean", 9), ("median", 7), ("r ° mean", 9), ("median", 7), ("wins t/r", 9), ("t/unif", 7)
     print(f"{'world':9} {'support':24} " + " ".join(f"{n:>{w}}" for n, w in head))
