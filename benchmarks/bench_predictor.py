@@ -4,8 +4,10 @@ measured in one run; ``--compare OTHER.onnx`` times another exported predictor b
 ratio measured in the same run). The network is the shipped model's architecture (else the
 default SupportUNet) with random weights, exported as ``supportnet export`` does today (speed
 does not depend on the weights); the shipped file itself is timed beside it (exported by the
-code of its day: before stop 49 its output was upsampled inside the graph). Prints a table and
-writes benchmarks/results/predictor.json.
+code of its day: before stop 49 its output was upsampled inside the graph), and so is its call as
+Stage 4 makes it (``predict_frame``: the small frame at its 360.8 px, the full one at KITTI's 721.5
+px, resampled to the 360.8 px the model learned at and its map brought back). Prints a table and writes
+benchmarks/results/predictor.json.
 
     python benchmarks/bench_predictor.py [--compare OTHER.onnx]
 """
@@ -21,13 +23,29 @@ import numpy as np
 import torch
 from results_io import save_results
 
+from calib.data.types import Calibration, Frame
 from export.onnx_export import export_network
 from supportnet.nets.support_unet import ModelConfig, SupportUNet
 from supportnet.runtime.support_predictor import SHIPPED_MODEL, SupportPredictor
+from supportnet.runtime.support_sources import predict_frame
 
 SHAPES, REPEATS = ((188, 624), (375, 1242)), 50
 TARGET_MS = 5.0
 """Issue 22: onnxruntime at most this per 624x188 frame on the 2-core CI machine."""
+FOCAL_PX = {(188, 624): 360.8, (375, 1242): 721.5}
+"""Each size's focal length: the small synthetic camera's, KITTI's colour camera's."""
+
+
+def stage4_call(predictor: SupportPredictor):
+    """``predict_frame`` as Stage 4 calls it, on a frame of ``image`` at its size's focal length."""
+
+    def call(image: np.ndarray) -> np.ndarray:
+        H, W = image.shape[:2]
+        f = FOCAL_PX[(H, W)]
+        K = np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]])
+        return predict_frame(predictor, Frame(image, np.zeros((0, 4), np.float32), Calibration(K)))
+
+    return call
 
 
 def timed(fn, image: np.ndarray) -> dict:
@@ -71,6 +89,7 @@ def main() -> None:
         }
         if SHIPPED_MODEL.is_file():
             makers["onnxruntime, shipped file"] = lambda: SupportPredictor(SHIPPED_MODEL).predict
+            makers["shipped file as Stage 4 calls it"] = lambda: stage4_call(SupportPredictor(SHIPPED_MODEL))
         if args.compare is not None:
             makers[f"onnxruntime, {args.compare.name}"] = lambda: SupportPredictor(args.compare).predict
         rows = {}
