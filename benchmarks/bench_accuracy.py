@@ -4,8 +4,9 @@ both worlds, paired runs from a 10 cm / 2° error; and Stage 1 from motion on 30
 Everything is synthesised in a temporary folder with fixed seeds: Stage 4 on the held-out seed 9
 (80 frames, the shipped predictor never saw it), Stage 1 on seed 21, all at the small 624x188 size
 the shipped predictor was trained on (``small=True``), or with ``--full-res`` Stage 4 at the
-worlds' real pixel scale (urban 1242x375, vineyard 960x540; the predictor then sees its images at
-twice the scale it was trained at). Prints a table and writes benchmarks/results/accuracy.json.
+worlds' real pixel scale (urban 1242x375, vineyard 960x540; the predictor resamples their images
+to the 360.8 px it learned at, ``predict_frame``). Prints a table and writes
+benchmarks/results/accuracy.json.
 
     python benchmarks/bench_accuracy.py [--runs 10] [--stage1-frames 300] [--camera-offset-ms MS]
         [--model OTHER.onnx] [--time-offset estimate|off|fixed:MS] [--supports uniform,offline,onnx]
