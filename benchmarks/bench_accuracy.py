@@ -10,7 +10,11 @@ benchmarks/results/accuracy.json.
 
     python benchmarks/bench_accuracy.py [--runs 10] [--stage1-frames 300] [--camera-offset-ms MS]
         [--model OTHER.onnx] [--time-offset estimate|off|fixed:MS] [--supports uniform,offline,onnx]
-        [--worlds vineyard,urban] [--full-res] [--name accuracy]
+        [--worlds vineyard,urban] [--full-res] [--depth-strata N] [--name accuracy]
+
+``--depth-strata N`` runs each SGIS support once more, from the same starts and sampling seeds,
+with ``sampling.depth_strata: N`` (SGIS within N depth quantiles, calib/refine/sgis.py): rows
+``NAME/strataN``, their paired wins against the same uniform runs.
 
 The table's last column is each support's median translation error over uniform's (the paper's
 Experiment 3 asks whether SGIS lowers it by at least 15 %: a ratio of 0.85 or less).
@@ -30,7 +34,7 @@ from calib.errors import NumericalError
 from calib.init.motion_init import load_stage1_config
 from calib.refine.passes import load_calibrate_config
 from calib.support.support_maps import load_maps_config
-from supportnet.cli.cmd_calibrate import run_calibrate
+from supportnet.cli.cmd_calibrate import paired_wins, run_calibrate
 from supportnet.cli.cmd_init_calib import run_init_calib
 from supportnet.cli.cmd_maps import run_maps
 from supportnet.cli.cmd_synth import run_synth
@@ -49,6 +53,7 @@ def stage4(
     time_offset: str,
     supports: str,
     small: bool,
+    depth_strata: int | None = None,
 ) -> dict:
     data = tmp / world
     run_synth(world, 80, 9, data, "09", console=console, small=small, camera_offset_ms=offset_ms)
@@ -62,13 +67,29 @@ def stage4(
     names = {"uniform": "uniform", "onnx": "sgis_predicted", f"offline:{maps}": "sgis_offline"}
     if model:
         names[f"onnx:{model}"] = f"sgis_predicted:{Path(model).name}"
-    return {
+    rows = {
         names[name]: {
             **r["summary"],
             "vs_uniform": result["paired_vs_uniform"].get(name),
         }
         for name, r in result["results"].items()
     }
+    sgis = ",".join(name for name in result["results"] if name != "uniform")
+    if depth_strata is None or not sgis:
+        return rows
+    strata = config.model_copy(
+        update={"sampling": config.sampling.model_copy(update={"depth_strata": depth_strata})}
+    )
+    stratified = run_calibrate(
+        data, "09", sgis, "perturb:10,2", tmp / f"cal_{world}_strata", strata, runs, console=console
+    )
+    uniform = result["results"].get("uniform")
+    for name, r in stratified["results"].items():
+        rows[f"{names[name]}/strata{depth_strata}"] = {
+            **r["summary"],
+            "vs_uniform": paired_wins(r["runs"], uniform["runs"]) if uniform else None,
+        }
+    return rows
 
 
 def stage1(world: str, tmp: Path, frames: int, console: Console) -> dict:
@@ -101,6 +122,9 @@ def main() -> None:
     parser.add_argument("--supports", default="uniform,offline,onnx", help="offline: seed 9's maps")
     parser.add_argument("--worlds", default=",".join(WORLDS))
     parser.add_argument("--full-res", action="store_true", help="Stage 4 at the worlds' real pixel scale")
+    parser.add_argument(
+        "--depth-strata", type=int, default=None, help="each SGIS support again with sampling.depth_strata N"
+    )
     parser.add_argument("--name", default="accuracy", help="results/NAME.json")
     args = parser.parse_args()
     console = Console(stderr=True)
@@ -117,6 +141,7 @@ def main() -> None:
                     args.time_offset,
                     args.supports,
                     small=not args.full_res,
+                    depth_strata=args.depth_strata,
                 )
                 for w in args.worlds.split(",")
             },
@@ -126,7 +151,7 @@ def main() -> None:
         }
     rows["runs"], rows["stage1_frames"] = args.runs, args.stage1_frames
     rows["camera_offset_ms"], rows["time_offset"] = args.camera_offset_ms, args.time_offset
-    rows["full_res"] = args.full_res
+    rows["full_res"], rows["depth_strata"] = args.full_res, args.depth_strata
     print(f"Stage 4 from 10 cm / 2°, {args.runs} paired runs (mean / median)")
     head = ("t cm mean", 9), ("median", 7), ("r ° mean", 9), ("median", 7), ("wins t/r", 9), ("t/unif", 7)
     print(f"{'world':9} {'support':24} " + " ".join(f"{n:>{w}}" for n, w in head))

@@ -26,7 +26,7 @@ from calib.refine.contour_refine import ContourRefineConfig
 from calib.refine.frame_selection import FrameSelectionConfig
 from calib.refine.global_search import GlobalSearchConfig
 from calib.refine.outliers import OutlierConfig, frame_outliers, near_points, trim_points
-from calib.refine.sgis import support_sample, uniform_sample
+from calib.refine.sgis import depth_strata, stratified_support_sample, support_sample, uniform_sample
 from calib.refine.solver import RefineConfig, Refinement, TimeModel, refine_extrinsic
 from calib.refine.tracking import OnlineConfig
 from calib.support.source import SupportSource
@@ -52,6 +52,14 @@ class SamplingConfig(BaseModel):
     per_frame: int = Field(2000, ge=6, description="correspondences drawn from each frame per pass")
     floor: float = Field(0.01, ge=0, description="added to every support value (zero stays possible)")
     weight_by_support: bool = Field(True, description="weight each drawn residual by s_i too (Eq. 4)")
+    depth_strata: int = Field(
+        1,
+        ge=1,
+        description="SGIS within this many depth quantiles of the frame's matches, each given the share "
+        "uniform sampling gives it and its Eq. 4 weights scaled to mean 1 (calib/refine/sgis.py): the "
+        "support chooses among points of like depth, the near ones keep their hold on the translation "
+        "(1: Eq. 3 over all, the paper's SGIS)",
+    )
 
 
 class TimeOffsetConfig(BaseModel):
@@ -436,16 +444,32 @@ class PassesResult:
 
 
 def draw(
-    support: np.ndarray | None, n: int, config: SamplingConfig, rng: np.random.Generator
+    support: np.ndarray | None,
+    n: int,
+    config: SamplingConfig,
+    rng: np.random.Generator,
+    depth: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Indices and Eq. 4 weights of ``config.per_frame`` of ``n`` candidates: SGIS on their
-    support values ``(n,)``, or uniform when ``support`` is ``None``."""
+    support values ``(n,)``, or uniform when ``support`` is ``None``; with
+    ``config.depth_strata > 1`` SGIS within depth strata of ``depth (n,)`` (required then), each
+    stratum's weights scaled to mean 1."""
     if support is None:
         index = uniform_sample(n, config.per_frame, rng)
         return index, np.ones(len(index))
     s = np.asarray(support, np.float64)
-    index = support_sample(s, config.per_frame, rng, config.floor)
-    return index, (s[index] + config.floor if config.weight_by_support else np.ones(len(index)))
+    if config.depth_strata == 1:
+        index = support_sample(s, config.per_frame, rng, config.floor)
+        return index, (s[index] + config.floor if config.weight_by_support else np.ones(len(index)))
+    if depth is None:
+        raise ValueError(f"sampling.depth_strata = {config.depth_strata} needs each candidate's depth")
+    strata = depth_strata(depth, config.depth_strata)
+    index = stratified_support_sample(s, strata, config.per_frame, rng, config.floor)
+    if not config.weight_by_support:
+        return index, np.ones(len(index))
+    weight = s[index] + config.floor
+    _, label, count = np.unique(strata[index], return_inverse=True, return_counts=True)
+    return index, weight * count[label] / np.bincount(label, weights=weight)[label]
 
 
 def _usable(corr: Correspondences, config: OutlierConfig) -> Correspondences:
@@ -556,7 +580,8 @@ def refine_passes(
                 continue
             support_map = support(frame)
             values = None if support_map is None else pixel_lookup(support_map, corr.uv)
-            index, w = draw(values, len(corr), config.sampling, rng)
+            ranges = np.linalg.norm(corr.points_lidar, axis=1)  # depth strata's depth
+            index, w = draw(values, len(corr), config.sampling, rng, ranges)
             # with a time model the solver moves the points itself, from their stamp's frame
             points.append(corr.points_lidar[index] if stamp is None else stamp[k][corr.index[index]])
             targets.append(corr.uv_matched[index])

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from calib.refine.sgis import support_sample, uniform_sample
+from calib.refine.passes import SamplingConfig, draw
+from calib.refine.sgis import depth_strata, stratified_support_sample, support_sample, uniform_sample
 
 
 def test_first_draw_follows_the_support_exactly():
@@ -49,3 +50,50 @@ def test_a_hundred_thousand_candidates_sample_fast_enough_to_not_matter():
     rng = np.random.default_rng(3)
     chosen = support_sample(rng.random(100_000), 2000, rng)
     assert chosen.shape == (2000,) and len(np.unique(chosen)) == 2000
+
+
+def test_depth_strata_are_equal_quantiles_nearest_first():
+    depth = np.array([9.0, 1.0, 5.0, 3.0, 7.0, 2.0, 8.0, 4.0])
+    np.testing.assert_array_equal(depth_strata(depth, 4), [3, 0, 2, 1, 2, 0, 3, 1])
+    np.testing.assert_array_equal(depth_strata(depth, 1), np.zeros(8))
+    sizes = np.bincount(depth_strata(np.random.default_rng(0).random(1001), 4))
+    assert sizes.tolist() == [251, 250, 250, 250]
+    with pytest.raises(ValueError, match="at least 1"):
+        depth_strata(depth, 0)
+    with pytest.raises(ValueError, match="finite"):
+        depth_strata(np.array([1.0, np.inf]), 2)
+
+
+def test_each_depth_stratum_keeps_uniform_sampling_share_and_support_chooses_within():
+    """Support all on the far half: plain SGIS takes nearly nothing near, the stratified draw takes
+    each quarter's 25 of 100, and within a quarter only the points of support (no floor)."""
+    rng = np.random.default_rng(4)
+    depth = rng.uniform(1, 50, 1000)
+    strata = depth_strata(depth, 4)
+    support = np.where(strata >= 2, 1.0, 0.0)
+    support[(strata == 0) & (np.arange(1000) % 2 == 0)] = 0.2  # half of the nearest quarter
+    plain = support_sample(support, 100, rng)
+    chosen = stratified_support_sample(support, strata, 100, rng)
+    assert np.bincount(strata[plain], minlength=4)[:2].sum() < 10
+    assert np.bincount(strata[chosen], minlength=4).tolist() == [25, 0, 25, 25]  # quarter 1: no support
+    assert (support[chosen] > 0).all() and len(np.unique(chosen)) == len(chosen)
+    floored = stratified_support_sample(support, strata, 100, rng, floor=0.01)
+    assert np.bincount(strata[floored], minlength=4).tolist() == [25, 25, 25, 25]
+    with pytest.raises(ValueError, match="shape"):
+        stratified_support_sample(support, strata[:10], 100, rng)
+
+
+def test_stratified_draws_weigh_each_stratum_to_mean_one():
+    """Eq. 4 weights scaled per stratum: the support ranks points within a depth, not across."""
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(1, 50, 4000)
+    support = np.where(depth > 25, 0.9, 0.1)
+    config = SamplingConfig(per_frame=400, depth_strata=2)
+    index, weight = draw(support, len(depth), config, rng, depth)
+    near = depth_strata(depth, 2)[index] == 0
+    assert near.sum() == 200
+    np.testing.assert_allclose([weight[near].mean(), weight[~near].mean()], [1.0, 1.0])
+    plain, plain_weight = draw(support, len(depth), SamplingConfig(per_frame=400), rng)
+    np.testing.assert_allclose(plain_weight, support[plain] + config.floor)  # Eq. 4 as before
+    with pytest.raises(ValueError, match="depth"):
+        draw(support, len(depth), config, rng)
