@@ -57,6 +57,19 @@ class Correspondences:
         """``f = ũ − u``, ``(N, 2)`` pixels."""
         return self.uv_matched - self.uv
 
+    @classmethod
+    def concatenate(cls, parts: Sequence[Correspondences]) -> Correspondences:
+        """One frame's correspondences from several matchings (of one image size), in order."""
+        if not parts or any(p.image_size != parts[0].image_size for p in parts):
+            raise ValueError("concatenate needs at least one part, all of one image size")
+        return cls(
+            *(
+                np.concatenate([getattr(p, name) for p in parts])
+                for name in ("index", "points_lidar", "uv", "uv_matched", "confidence")
+            ),
+            parts[0].image_size,
+        )
+
     def subset(self, mask: np.ndarray) -> Correspondences:
         """The correspondences selected by a boolean mask or an index array."""
         return Correspondences(
