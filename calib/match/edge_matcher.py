@@ -81,14 +81,6 @@ class EdgeMatcherConfig(BaseModel):
     )
     intensity_edge_px: float = Field(0.08, gt=0, description="|∇ intensity| per pixel of a full edge")
     intensity_weight: float = Field(0.5, ge=0, description="intensity edges relative to depth edges")
-    intensity_across_rings: float = Field(
-        1.0,
-        ge=0,
-        le=1,
-        description="weight of an intensity edge whose gradient runs across the scan lines (along the "
-        "pixels' LiDAR elevation) against one along them, cos² between: a scan's lasers differ in gain, "
-        "so its rings stripe the intensity image with edges along them that the camera does not see",
-    )
     level_laser_gains: bool = Field(
         True,
         description="level each laser's intensity gain to its neighbours' before drawing intensity "
@@ -198,16 +190,6 @@ def _ray_elevation_of(R_bytes: bytes, K_bytes: bytes, image_size: tuple[int, int
     elevation = np.degrees(np.arctan2(z, np.hypot(x, y)))
     elevation.flags.writeable = False
     return elevation
-
-
-def _along_rings(gx: np.ndarray, gy: np.ndarray, elevation_deg: np.ndarray, across: float) -> np.ndarray:
-    """``1 − (1 − across) cos² φ``, ``φ`` between the gradient ``(gx, gy)`` and the elevation's:
-    1 for an edge across the scan lines' direction (its gradient along them), ``across`` for one
-    along a scan line; ``(H, W)`` float32."""
-    ey, ex = np.gradient(elevation_deg.astype(np.float32))
-    dot = gx * ex + gy * ey
-    cos2 = dot * dot / ((gx * gx + gy * gy) * (ex * ex + ey * ey) + 1e-12)
-    return (1 - (1 - across) * cos2).astype(np.float32)
 
 
 def _fill_radius_deg(rings: RingProfile, elevation_deg: np.ndarray, config: EdgeMatcherConfig) -> np.ndarray:
@@ -334,10 +316,7 @@ def lidar_edges(
     start, full = config.depth_edge_px
     field = _orientation_field(gx, gy, np.clip((m - start) / (full - start), 0, 1))
     gx, gy, m = _gradient(np.clip(intensity, 0, 1), 0.7)
-    strength = np.clip(m / config.intensity_edge_px, 0, 1)
-    if config.intensity_across_rings < 1:
-        strength *= _along_rings(gx, gy, ray_elevation[rows, cols], config.intensity_across_rings)
-    field += config.intensity_weight * _orientation_field(gx, gy, strength)
+    field += config.intensity_weight * _orientation_field(gx, gy, np.clip(m / config.intensity_edge_px, 0, 1))
     field *= (dist[rows, cols] <= fill_px[rows, cols] + 1) | sees[rows, cols]
     whole = np.zeros((2, H, W), np.float32)
     whole[:, rows, cols] = field

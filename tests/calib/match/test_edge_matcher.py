@@ -469,26 +469,3 @@ def test_a_matcher_reused_answers_as_a_new_one_and_keeps_a_moved_scans_features(
     common, i, j = np.intersect1d(fresh.index, again.index, return_indices=True)
     assert len(common) > 0.99 * max(len(fresh), len(again))
     assert np.median(np.linalg.norm(fresh.uv_matched[i] - again.uv_matched[j], axis=1)) < 0.01
-
-
-def test_intensity_edges_along_the_scan_lines_are_weighed_by_intensity_across_rings():
-    """A wall whose rings alternate in gain (stripes along the scan lines) and whose left half is
-    brighter (an edge across them): with ``intensity_across_rings: 0`` the stripes' edges go and
-    the vertical edge stays as it was; with 1 (the default) both are there."""
-    scan = _wall_scan(-3 + 0.4 * np.arange(16))
-    ring = np.repeat(np.arange(16), len(scan) // 16)
-    scan[:, 3] = np.where(ring % 2 == 0, 0.4, 0.6) + np.where(scan[:, 1] > 0, 0.3, 0.0)  # y > 0: left
-    T = np.eye(4)
-    T[:3, :3] = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])
-    K = np.array([[360.0, 0, 320], [0, 360, 100], [0, 0, 1]])
-    no_depth = {"depth_edge_px": (10.0, 20.0), "level_laser_gains": False}  # intensity edges alone
-
-    def strength(across: float) -> tuple[float, float]:
-        config = EdgeMatcherConfig(intensity_across_rings=across, **no_depth)
-        field, _ = lidar_field(scan, T, K, (200, 640), config)
-        m = np.hypot(*field)
-        return float(m[60:140, 200:300].mean()), float(m[60:140, 312:328].max())  # stripes; the edge at u 320
-
-    (stripes_kept, edge_kept), (stripes_gone, edge_alone) = strength(1.0), strength(0.0)
-    assert stripes_kept > 0.05 and stripes_gone < 0.1 * stripes_kept
-    assert edge_alone == pytest.approx(edge_kept, rel=0.05) and edge_alone > 0.1
