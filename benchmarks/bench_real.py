@@ -96,6 +96,10 @@ VARIANTS = {
         "global+4 flow passes on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25"
     ),  # the packaged config with four flow passes instead of two
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-pool3": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the last 3 matchings pooled"
+    ),  # the packaged config with pool_matchings 3
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -126,6 +130,8 @@ INTENSITY_WEIGHT = 0.5
 LOW_INTENSITY_WEIGHT = 0.25
 """The ``iw25`` / ``iwfine`` variants' intensity edge weight:
 everywhere, at the finest level, or (``iwfine360``) from 360 px on."""
+POOLED_MATCHINGS = 3
+"""The ``pool3`` variants' ``pool_matchings``: a last fit over the last three matchings near the answer."""
 SUPERSAMPLED = {"supersample": 4, "redraw_px": 4.0}
 """The ``ss4`` variants' edge matcher: each scan's edges drawn at four sub-pixel phases of the
 grid and averaged, and kept while the view turns less than 4 px (``edge.supersample``,
@@ -212,6 +218,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 else 0,
                 "flow_coarse_frames": FLOW_COARSE_FRAMES if "flowcoarse3" in stages else None,
                 "probe_frames": PROBE_FRAMES if "probe4" in stages else None,
+                "pool_matchings": POOLED_MATCHINGS if "pool3" in stages else 1,
             }
         )
 
