@@ -4,6 +4,7 @@ matcher three times; each pass starts from the last estimate)."""
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
@@ -563,7 +564,10 @@ def refine_passes(
             return frames
         return timing.frames_at(frames, dt)
 
-    matchings: list[tuple[np.ndarray, float | None, list[Correspondences]]] = []  # for the pooled fit
+    # the last matchings, for the pooled fit (a matching of ten full-resolution frames holds ~10 MB)
+    matchings: deque[tuple[np.ndarray, float | None, list[Correspondences]]] = deque(
+        maxlen=2 * config.pool_matchings + config.halvings if config.pool_matchings > 1 else 0
+    )
 
     def matched_under(T: np.ndarray, dt: float | None) -> tuple[list[Correspondences], float]:
         matched = [_usable(corr, rules) for corr in match_frames(matcher, at(dt), T)]
@@ -760,7 +764,7 @@ def refine_passes(
 def _pooled_fit(
     T: np.ndarray,
     dt: float | None,
-    matchings: list[tuple[np.ndarray, float | None, list[Correspondences]]],
+    matchings: Sequence[tuple[np.ndarray, float | None, list[Correspondences]]],
     history: list[dict],
     fits: list[tuple[Refinement, int]],
     one_pass: Callable[..., tuple[Refinement, dict]],
