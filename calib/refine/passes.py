@@ -775,8 +775,8 @@ def _pooled_fit(
     ``δt`` within a millisecond), drawn ``per_frame`` times as many; ``history`` and ``fits`` gain
     it. A correspondence is a LiDAR point and the image location the matcher found for it, whatever
     extrinsic it was measured under, so matchings near the answer pool; each pass's answer carries
-    the noise of its one matching, and the pooled fit averages them. Returns ``T, dt`` unchanged
-    where fewer than two matchings are near."""
+    the noise of its one matching, and the pooled fit averages them; its covariance is reported as
+    one matching's. Returns ``T, dt`` unchanged where fewer than two matchings are near."""
     cm, deg = config.pool_within
     near = [
         matched
@@ -790,6 +790,14 @@ def _pooled_fit(
     merged = [Correspondences.concatenate(parts) for parts in zip(*near, strict=True)]
     alignment = _median_norm(np.concatenate([c.residual for c in near[-1]]))
     result, entry = one_pass(T, dt, merged, alignment, pooled=len(near))
+    # its correspondences are not len(near) times the evidence (the matchings share the image
+    # and the scan): its uncertainty stays one matching's
+    std = result.time_offset_std_s
+    result = replace(
+        result,
+        covariance=result.covariance * len(near),
+        time_offset_std_s=None if std is None else std * math.sqrt(len(near)),
+    )
     history.append({**entry, "pooled_matchings": len(near)})
     fits.append((result, entry["correspondences"]))
     return result.T_cam_lidar, result.time_offset_s
