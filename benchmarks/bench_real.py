@@ -91,7 +91,7 @@ VARIANTS = {
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25"
-    ),  # the packaged calibrate.yaml until 2026-11-28 (stop 57)
+    ),  # the packaged calibrate.yaml (PACKAGED)
     "global-flowcoarse3-fp4-probe4-pyramid-fullres-iwfine360": (
         "global+4 flow passes on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25"
@@ -99,12 +99,12 @@ VARIANTS = {
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-pool3": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the last 3 matchings pooled"
-    ),  # the packaged calibrate.yaml (PACKAGED): pool_matchings 3
+    ),  # the packaged config with pool_matchings 3
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
 }
-PACKAGED = "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-pool3"
+PACKAGED = "global-flowcoarse3-probe4-pyramid-fullres-iwfine360"
 """The variant that is the packaged ``calibrate.yaml`` (the default of ``--variants``)."""
 FLOW_COARSE_PASSES = 2
 """The ``flowcoarse`` variants' passes of the learned matcher (``flow_coarse_passes``)."""

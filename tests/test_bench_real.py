@@ -180,15 +180,15 @@ def test_parts_join_run_by_run_and_are_summarised_again():
 def test_the_packaged_variant_is_the_packaged_config():
     """The README's rows of ``PACKAGED`` measure what ``calibrate`` runs (and what
     ``bench_real.py`` runs by default); ``global-pyramid`` stays the default before full resolution
-    (finest passes at 360 px), ``global-pyramid-fullres-iwfine360`` the one before the flow start,
-    and the packaged one before stop 57 the same without pooled matchings."""
+    (finest passes at 360 px), ``global-pyramid-fullres-iwfine360`` the one before the flow start;
+    ``pool3`` the packaged one with three matchings pooled."""
     from calib.refine.passes import load_calibrate_config
 
-    unpooled = "global-flowcoarse3-probe4-pyramid-fullres-iwfine360"
-    names = [bench_real.PACKAGED, unpooled, "global-pyramid-fullres-iwfine360", "global-pyramid"]
+    pooled = f"{bench_real.PACKAGED}-pool3"
+    names = [bench_real.PACKAGED, pooled, "global-pyramid-fullres-iwfine360", "global-pyramid"]
     configs = bench_real.variant_configs(names)
     assert configs[bench_real.PACKAGED] == load_calibrate_config()
-    assert configs[unpooled] == load_calibrate_config().model_copy(update={"pool_matchings": 1})
+    assert configs[pooled] == load_calibrate_config().model_copy(update={"pool_matchings": 3})
     before = configs["global-pyramid-fullres-iwfine360"]
     assert before == load_calibrate_config().model_copy(
         update={
@@ -235,7 +235,6 @@ def test_the_flow_coarse_variants_are_the_packaged_config_on_every_frame_or_thre
         update={
             "flow_coarse_frames": bench_real.FLOW_COARSE_FRAMES,
             "probe_frames": bench_real.PROBE_FRAMES,
-            "pool_matchings": bench_real.POOLED_MATCHINGS,
         }
     )
     assert packaged == load_calibrate_config()
