@@ -321,7 +321,11 @@ class Calibrator:
         rng = np.random.default_rng(seed)
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
         if self.config.flow_coarse_passes:  # the learned matcher's passes from the initial extrinsic
-            flow_config = self.config.model_copy(update={"passes": self.config.flow_coarse_passes})
+            # pooled matchings (`pool_matchings`) average the finest level's noise; a coarser answer
+            # only starts the next level
+            flow_config = self.config.model_copy(
+                update={"passes": self.config.flow_coarse_passes, "pool_matchings": 1}
+            )
             some, some_timing = _spread(frames, held, self.config.flow_coarse_frames)
             flow = refine_passes(
                 some, T_init, self.coarse_matcher, self.support, flow_config, rng, timing=some_timing
@@ -338,7 +342,7 @@ class Calibrator:
             probe = self.config.probe_focal_px
             coarser = probe is not None and probe < NEAR_FINEST * self._finest_focal(frames)
             matcher, config = self._level(probe if coarser else None)
-            one_pass = config.model_copy(update={"passes": 1})
+            one_pass = config.model_copy(update={"passes": 1, "pool_matchings": 1})
             some, some_timing = _spread(frames, held, self.config.probe_frames)
             probed = refine_passes(
                 some, T_start, matcher, self.support, one_pass, rng, alternatives, some_timing
@@ -350,6 +354,7 @@ class Calibrator:
         for focal in pyramid:  # the edge matcher coarse to fine, δt held until `time_offset.from_px`
             matcher, level_config = self._level(focal, _from(focal, self.config.fine_from_px))
             timed = timing is not None and _from(focal, timed_from)
+            level_config = level_config.model_copy(update={"pool_matchings": 1})
             level = refine_passes(
                 frames, T_start, matcher, self.support, level_config, rng, timing=timing if timed else held
             )

@@ -339,3 +339,24 @@ def test_online_calibrator_closes_windows_and_tracks(frames):
     assert calibration_error(last.T_cam_lidar, T_ref).rotation_deg < 0.5
     assert np.allclose(online.T_cam_lidar, last.T_cam_lidar)
     json.dumps(last.to_dict(), allow_nan=False)
+
+
+def test_matchings_are_pooled_at_the_finest_level_alone(frames, monkeypatch):
+    """``pool_matchings`` averages the finest level's noise; the learned matcher's passes, the probe
+    and the pyramid's levels only start the next stage and end on their last pass."""
+    import calib.pipeline
+
+    pooled, refine_passes = [], calib.pipeline.refine_passes
+
+    def recording(frames, T, matcher, support, config, *args, **kwargs):
+        pooled.append(config.pool_matchings)
+        return refine_passes(frames, T, matcher, support, config, *args, **kwargs)
+
+    monkeypatch.setattr(calib.pipeline, "refine_passes", recording)
+    config = FAST.model_copy(update={"pool_matchings": 3, "pyramid_focals_px": (90.0, 180.0)})
+    T_ref = frames[0].calibration.T_cam_lidar
+    result = Calibrator(config=config).calibrate(
+        frames, perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(0))
+    )
+    assert len(pooled) >= 3 and pooled[-1] == 3 and set(pooled[:-1]) == {1}
+    assert result.error.translation_cm < 2.5 and result.error.rotation_deg < 0.4
