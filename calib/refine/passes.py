@@ -300,7 +300,8 @@ class CalibrateConfig(BaseModel):
         description="once settled, one fit more over the correspondences of the last this many "
         "matchings measured near the answer (pool_within): each pass's answer carries the noise of "
         "its one matching (six KITTI frames: 0.2-1.2 cm per pass), the pooled fit averages them "
-        "without a matching more (1: the last pass's answer)",
+        "without a matching more (1: the last pass's answer). Calibrator pools at its finest level "
+        "alone (a coarser answer only starts the next level); an online window pools its own",
     )
     pool_within: tuple[NonNegativeFloat, NonNegativeFloat] = Field(
         (2.0, 0.2), description="(cm, °): a matching is pooled when its extrinsic lies this near the answer"
@@ -599,7 +600,8 @@ def refine_passes(
                 continue
             support_map = support(frame)
             values = None if support_map is None else pixel_lookup(support_map, corr.uv)
-            ranges = np.linalg.norm(corr.points_lidar, axis=1)  # depth strata's depth
+            # depth strata's depth: the range, only where SGIS draws within strata
+            ranges = np.linalg.norm(corr.points_lidar, axis=1) if sampling.depth_strata > 1 else None
             index, w = draw(values, len(corr), sampling, rng, ranges)
             # with a time model the solver moves the points itself, from their stamp's frame
             points.append(corr.points_lidar[index] if stamp is None else stamp[k][corr.index[index]])

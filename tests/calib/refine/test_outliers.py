@@ -294,13 +294,8 @@ class NoisyRounds:
     name = "noisy rounds"
 
     def __init__(self, frames: int, seed: int) -> None:
-        self.frames, self.generator, self.rounds, self.calls = (
-            frames,
-            torch.Generator().manual_seed(seed),
-            [],
-            0,
-        )
-        self.lock = threading.Lock()
+        self.frames, self.calls, self.rounds = frames, 0, []
+        self.generator, self.lock = torch.Generator().manual_seed(seed), threading.Lock()
 
     def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
         with self.lock:
