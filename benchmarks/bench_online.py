@@ -65,6 +65,7 @@ VARIANTS: dict[str, dict] = {
     "clock-rate": {
         "online": {"time_offset_rate_initial_std_ppm": 1000.0, "time_offset_rate_process_std_ppm": 50.0}
     },
+    "pool3": {"pool_matchings": 3},
 }
 """Config overrides merged over the packaged ``calibrate.yaml`` (top-level groups as dicts)."""
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from calib.synth.camera_effects import compress, expose
 from calib.synth.materials import sky, surface, to_srgb
-from calib.synth.raycast import Raycaster
+from calib.synth.raycast import Hits, Raycaster
 from calib.synth.sensors import CameraConfig, LidarConfig, beam_directions, camera_rays, lidar_rays
 from calib.synth.synth_config import CameraEffectsConfig, LightConfig
 
@@ -113,6 +113,43 @@ class Lidar:
         # The sweep turns from +π to -π and passes forward (azimuth 0) at the scan's stamp
         self.times = -azimuth / (2 * np.pi) * period_s
 
+    def _cast(self, caster: Raycaster, origins: np.ndarray, directions: np.ndarray) -> Hits:
+        """Each beam's return: one ray, or with ``beam_divergence_deg`` seven across its spot (its
+        centre and a hexagon at the radius that halves a uniform spot's area), grouped by the
+        surface (class and instance) each hits; the beam returns the group whose hits bring back
+        the most energy (count over range²) if at least two rays hit it, at their mean range."""
+        if self.config.beam_divergence_deg <= 0:
+            return caster.cast(origins, directions)
+        radius = np.radians(self.config.beam_divergence_deg) / 2 / np.sqrt(2)
+        across = np.cross(directions, [0.0, 0.0, 1.0])
+        across /= np.maximum(np.linalg.norm(across, axis=1, keepdims=True), 1e-12)
+        down = np.cross(directions, across)
+        angles = np.arange(6) * np.pi / 3
+        spot = radius * np.concatenate([[[0.0, 0.0]], np.column_stack([np.cos(angles), np.sin(angles)])])
+        rays = directions[:, None] + spot[:, :1] * across[:, None] + spot[:, 1:] * down[:, None]
+        rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+        n, s = rays.shape[:2]
+        sub = caster.cast(np.repeat(origins, s, axis=0), rays.reshape(-1, 3))
+        hit = sub.hit.reshape(n, s)
+        t = np.where(hit, sub.t.reshape(n, s), 0.0)
+        surface_id = (sub.label.astype(np.int64) << 16 | sub.instance).reshape(n, s)
+        same = (surface_id[:, :, None] == surface_id[:, None, :]) & hit[:, None, :]  # (beam, ray, ray)
+        energy = (same / np.where(hit, t, 1.0)[:, None, :] ** 2).sum(2)
+        energy = np.where(hit & (same.sum(2) >= 2), energy, -1.0)
+        beam = np.arange(n)
+        best = energy.argmax(1)  # ties: the centre ray first
+        returned = energy[beam, best] > 0
+        members = same[beam, best]
+        mean_t = (members * t).sum(1) / np.maximum(members.sum(1), 1)
+        pick = beam * s + best
+        return Hits(
+            np.where(returned, mean_t, np.inf),
+            sub.normal[pick],
+            np.where(returned, sub.material[pick], 255).astype(np.uint8),
+            np.where(returned, sub.label[pick], 0).astype(np.uint16),
+            np.where(returned, sub.instance[pick], 0).astype(np.uint16),
+        )
+
     def scan(self, caster: Raycaster, T_world_lidar: np.ndarray, rng: np.random.Generator) -> LidarScan:
         """Cast every beam.
 
@@ -123,7 +160,7 @@ class Lidar:
         column = np.tile(np.arange(self.azimuth_steps), self.config.beams) % len(T)
         directions = np.einsum("nij,nj->ni", T[column, :3, :3], self.cast_directions)
         origins = T[column, :3, 3]
-        hits = caster.cast(origins, directions)
+        hits = self._cast(caster, origins, directions)
         r = hits.t + rng.normal(0.0, self.config.range_noise_m, len(directions))
         valid = hits.hit & (r < self.config.max_range_m) & (r > 0.5)
         points = origins[valid] + directions[valid] * hits.t[valid, None]

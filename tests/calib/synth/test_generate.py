@@ -14,8 +14,10 @@ from calib.errors import DataError
 from calib.features import level_laser_gains, ring_stripes, scan_lines
 from calib.geometry import calibration_error, perturb
 from calib.synth.generate import RIGID_CLASSES, Synthesizer, reference_extrinsic, write_sequence
+from calib.synth.raycast import Mesh, Raycaster
 from calib.synth.render import Lidar
 from calib.synth.sensors import LidarConfig
+from calib.synth.shapes import boxes
 from calib.synth.synth_config import ExtrinsicConfig, load_synth_config
 
 SMALL = {
@@ -112,6 +114,31 @@ def test_laser_angle_errors_belong_to_the_rig_and_leave_the_extrinsic_true():
     assert abs(per_laser[:, 0].mean()) < 1e-6 and 0.1 < per_laser[:, 0].std() < 0.3
     ideal = Lidar(LidarConfig(beams=32, azimuth_step_deg=0.4, laser_angle_std_deg=0.0), 0.1, seed=3)
     np.testing.assert_allclose(ideal.cast_directions, ideal.directions, atol=1e-12)
+
+
+def test_beam_divergence_reaches_past_a_silhouette_by_part_of_the_spot():
+    """A pole 10 m ahead of a wall at 30 m: one ray per beam returns the pole only within its
+    silhouette; a 0.4° spot returns it up to half the hexagon's radius beyond (two of its seven
+    rays on the pole bring back more energy than five on the wall), never farther."""
+    pole = Mesh.of(boxes(np.array([[10.0, 0, 0]]), np.array([[0.2, 0.5, 10]])), 1, 80, 1)
+    wall = Mesh.of(boxes(np.array([[30.0, 0, 0]]), np.array([[0.2, 40, 20]])), 1, 50, 2)
+    caster = Raycaster([pole, wall])
+    silhouette = np.degrees(np.arctan2(0.25, 9.9))
+    beyond = []
+    for divergence in (0.0, 0.4):
+        config = LidarConfig(
+            beams=8, elevation_max_deg=2, elevation_min_deg=-2, azimuth_step_deg=0.01,
+            laser_gain_std=0, laser_angle_std_deg=0, range_noise_m=0, beam_divergence_deg=divergence,
+        )  # fmt: skip
+        scan = Lidar(config, 0.1, seed=0).scan(caster, np.eye(4), np.random.default_rng(0))
+        on_pole = scan.points[scan.labels == 80]
+        azimuth = np.degrees(np.abs(np.arctan2(on_pole[:, 1], on_pole[:, 0])))
+        ahead = np.linalg.norm(on_pole[:, :3], axis=1) * np.cos(np.radians(azimuth))
+        np.testing.assert_allclose(ahead, 9.9, atol=0.01)  # the pole's range, along the beam's centre
+        beyond.append(azimuth.max() - silhouette)
+    reach = np.degrees(np.radians(0.4) / 2 / np.sqrt(2)) / 2  # half the hexagon's radius: 0.07°
+    assert beyond[0] <= 0.01
+    assert reach - 0.02 <= beyond[1] <= reach + 0.01
 
 
 def test_wind_and_time_offset_lower_foliage_agreement():
