@@ -576,14 +576,22 @@ def refine_passes(
         return matched, _median_norm(np.concatenate([c.residual for c in matched]))
 
     def fit(points, targets, weights, scans, T: np.ndarray, dt: float | None) -> Refinement:
+        clusters = image_cells(targets, scans, K, config.refine.covariance_cell_deg)
         if timing is None:
-            return refine_extrinsic(points, targets, weights, K, T, config.refine)
+            return refine_extrinsic(points, targets, weights, K, T, config.refine, clusters=clusters)
         result = refine_extrinsic(
-            points, targets, weights, K, T, config.refine, TimeModel(scans, twists, dt, timing.estimate)
+            points,
+            targets,
+            weights,
+            K,
+            T,
+            config.refine,
+            TimeModel(scans, twists, dt, timing.estimate),
+            clusters,
         )
         if result.time_offset_std_s is not None and result.time_offset_std_s > timing.max_std_s:
             result = refine_extrinsic(
-                points, targets, weights, K, T, config.refine, TimeModel(scans, twists, dt, False)
+                points, targets, weights, K, T, config.refine, TimeModel(scans, twists, dt, False), clusters
             )
         return result
 
@@ -803,6 +811,16 @@ def _pooled_fit(
     history.append({**entry, "pooled_matchings": len(near)})
     fits.append((result, entry["correspondences"]))
     return result.T_cam_lidar, result.time_offset_s
+
+
+def image_cells(uv: np.ndarray, frame: np.ndarray, K: np.ndarray, cell_deg: float) -> np.ndarray | None:
+    """``(N,)`` an id per image cell of ``cell_deg`` (view angle at ``K``'s focal length) per
+    frame for pixels ``uv (N, 2)`` of frames ``frame (N,)``; ``None`` where ``cell_deg`` is 0."""
+    if cell_deg <= 0:
+        return None
+    cell_px = float(K[0, 0]) * math.tan(math.radians(cell_deg))
+    col, row = (np.floor(uv / cell_px).astype(np.int64) + 1_000).T  # ids stay positive off the image
+    return (frame.astype(np.int64) * 10_000 + row) * 10_000 + col
 
 
 def load_calibrate_config(path: Path | None = None) -> CalibrateConfig:

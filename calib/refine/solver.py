@@ -29,6 +29,7 @@ __all__ = [
     "RefineConfig",
     "Refinement",
     "TimeModel",
+    "cluster_covariance",
     "refine_extrinsic",
     "reprojection_jacobian",
     "robust_weight",
@@ -49,6 +50,14 @@ class RefineConfig(BaseModel):
         description="stop when ‖δ‖ (m, rad; δt in ms) falls below this: a micrometre, a microradian",
     )
     initial_damping: float = Field(1e-3, gt=0, description="Levenberg–Marquardt λ at the start")
+    covariance_cell_deg: float = Field(
+        0.0,
+        ge=0,
+        description="the covariance treats correspondences within one image cell of this size "
+        "(view angle) of one frame as one cluster of correlated errors (a cluster-robust sandwich; "
+        "the edge matcher smooths its flow over about 10° at full resolution, so neighbouring "
+        "residuals share their errors); 0: independent residuals, the normal equations' inverse",
+    )
     noise_floor_px: float = Field(
         0.5,
         gt=0,
@@ -185,6 +194,26 @@ def _normal_equations(w: torch.Tensor, J: torch.Tensor, r: torch.Tensor) -> tupl
     return weighted.T @ rows, weighted.T @ r.reshape(-1)
 
 
+def cluster_covariance(
+    H: torch.Tensor, w: torch.Tensor, J: torch.Tensor, r: torch.Tensor, clusters: torch.Tensor
+) -> torch.Tensor:
+    """The cluster-robust (sandwich) covariance ``H⁻¹ (Σ_c g_c g_cᵀ) H⁻¹ · C / (C − 1)`` of a
+    weighted least-squares estimate, with ``g_c = Σ_{i∈c} w_i J_iᵀ r_i`` each cluster's share of
+    the gradient (Liang and Zeger 1986): residuals within a cluster may be correlated in any way,
+    clusters are independent. With one residual per cluster and a constant weight it is White's
+    heteroscedasticity-consistent estimate.
+
+    Args:
+        H: ``(P, P)`` the normal matrix ``Σ w Jᵀ J``. w: ``(N,)``. J: ``(N, 2, P)``. r: ``(N, 2)``.
+        clusters: ``(N,)`` int ids.
+    """
+    ids, inverse = torch.unique(clusters, return_inverse=True)
+    per_point = torch.einsum("n,nkp,nk->np", w, J, r)
+    g = torch.zeros(len(ids), J.shape[-1], dtype=J.dtype).index_add_(0, inverse, per_point)
+    bread = torch.linalg.pinv(H)
+    return bread @ (g.T @ g) @ bread * (len(ids) / max(len(ids) - 1, 1))
+
+
 def refine_extrinsic(
     points_lidar: np.ndarray,
     uv_target: np.ndarray,
@@ -193,6 +222,7 @@ def refine_extrinsic(
     T_init: np.ndarray,
     config: RefineConfig = RefineConfig(),
     time: TimeModel | None = None,
+    clusters: np.ndarray | None = None,
 ) -> Refinement:
     """Minimise Eq. 4 over ``ΔT`` (and ``δt`` with ``time``) starting at ``T_init``.
 
@@ -200,6 +230,8 @@ def refine_extrinsic(
         points_lidar: ``(N, 3)`` points (with ``time``: deskewed to their scan's stamp).
         uv_target: ``(N, 2)`` matched pixels ``ũ_i``. weights: ``(N,)`` non-negative ``s_i``.
         K: ``(3, 3)``. T_init: ``(4, 4)`` ``T⁰_cam_lidar``. time: the time offset's model.
+        clusters: ``(N,)`` int, correspondences whose errors are correlated share an id: the
+            covariance is then the cluster-robust sandwich (:func:`cluster_covariance`).
 
     Raises:
         NumericalError: fewer than 6 usable correspondences, points behind the camera at the
@@ -268,7 +300,11 @@ def refine_extrinsic(
     H, _ = _normal_equations(w, J, r)
     dof = max(2 * used - n_params, 1)
     variance = float((w * (r * r).sum(1)).sum() / dof)
-    covariance = torch.linalg.pinv(H) * variance
+    covariance = (
+        torch.linalg.pinv(H) * variance
+        if clusters is None
+        else cluster_covariance(H, w, J, r, torch.as_tensor(np.asarray(clusters)))
+    )
     offset_std = None
     if n_params == 7:  # δt's information once the extrinsic is marginalised out (Schur complement)
         information = float(H[6, 6] - H[6, :6] @ torch.linalg.lstsq(H[:6, :6], H[:6, 6:]).solution[:, 0])
