@@ -819,8 +819,8 @@ def image_cells(uv: np.ndarray, frame: np.ndarray, K: np.ndarray, cell_deg: floa
     if cell_deg <= 0:
         return None
     cell_px = float(K[0, 0]) * math.tan(math.radians(cell_deg))
-    col, row = (np.floor(uv / cell_px).astype(np.int64) + 1_000).T  # ids stay positive off the image
-    return (frame.astype(np.int64) * 10_000 + row) * 10_000 + col
+    cells = np.column_stack([frame, np.floor(uv / cell_px)]).astype(np.int64)
+    return np.unique(cells, axis=0, return_inverse=True)[1].reshape(-1)
 
 
 def load_calibrate_config(path: Path | None = None) -> CalibrateConfig:

@@ -77,8 +77,8 @@ class LidarConfig(BaseModel):
         description="full angle of each beam's spot: a beam that grazes an object's edge is cast as "
         "seven rays across its spot and returns the surface most of its energy comes back from "
         "(hits over range²), at least two of the seven, reported along its centre, so objects "
-        "reach up to half a spot beyond their silhouettes as real returns do (a Velodyne HDL-64's "
-        "spot: about 0.1°); 0: one ray",
+        "reach past their silhouettes by about a sixth of the spot's angle, as real returns do "
+        "(a Velodyne HDL-64's spot: about 0.1°); 0: one ray",
     )
 
     @model_validator(mode="after")
