@@ -577,22 +577,12 @@ def refine_passes(
 
     def fit(points, targets, weights, scans, T: np.ndarray, dt: float | None) -> Refinement:
         clusters = image_cells(targets, scans, K, config.refine.covariance_cell_deg)
+        solve = partial(refine_extrinsic, points, targets, weights, K, T, config.refine, clusters=clusters)
         if timing is None:
-            return refine_extrinsic(points, targets, weights, K, T, config.refine, clusters=clusters)
-        result = refine_extrinsic(
-            points,
-            targets,
-            weights,
-            K,
-            T,
-            config.refine,
-            TimeModel(scans, twists, dt, timing.estimate),
-            clusters,
-        )
+            return solve()
+        result = solve(TimeModel(scans, twists, dt, timing.estimate))
         if result.time_offset_std_s is not None and result.time_offset_std_s > timing.max_std_s:
-            result = refine_extrinsic(
-                points, targets, weights, K, T, config.refine, TimeModel(scans, twists, dt, False), clusters
-            )
+            result = solve(TimeModel(scans, twists, dt, False))
         return result
 
     def one_pass(

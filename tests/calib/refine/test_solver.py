@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from calib.errors import SupportnetError
-from calib.geometry import calibration_error, perturb, se3_exp
+from calib.geometry import calibration_error, perturb, se3_exp, se3_log
 from calib.motion import ScanMotion
 from calib.projection import project_points, transform_points
 from calib.refine.passes import image_cells
@@ -89,8 +89,7 @@ def test_cluster_covariance_matches_the_scatter_of_errors_shared_within_clusters
         uv = uv_true + rng.normal(0, 1.0, (40, 2))[clusters] + rng.normal(0, 0.1, (1000, 2))
         fit = refine_extrinsic(points, uv, np.ones(1000), KITTI_K, T_ref, config, clusters=clusters)
         alone = refine_extrinsic(points, uv, np.ones(1000), KITTI_K, T_ref, config)
-        delta = se3_log_left(fit.T_cam_lidar, T_ref)
-        estimates.append(delta)
+        estimates.append(se3_log(torch.as_tensor(fit.T_cam_lidar @ np.linalg.inv(T_ref))).numpy())
         robust.append(np.sqrt(np.diag(fit.covariance)))
         naive.append(np.sqrt(np.diag(alone.covariance)))
     scatter = np.std(estimates, axis=0)
@@ -108,13 +107,6 @@ def test_image_cells_split_by_frame_and_by_view_angle():
     assert ids[0] == ids[1]  # one cell
     assert len({ids[0], ids[2], ids[3], ids[4], ids[5]}) == 5  # across, down, another frame, off the image
     assert image_cells(uv, np.zeros(6, int), K, 0.0) is None
-
-
-def se3_log_left(T: np.ndarray, T_ref: np.ndarray) -> np.ndarray:
-    """``(6,)`` the left perturbation ``δ = (ρ, ω)`` with ``T ≈ exp(δ) · T_ref`` (small)."""
-    E = T @ np.linalg.inv(T_ref)
-    omega = 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
-    return np.concatenate([E[:3, 3], omega])
 
 
 def test_cluster_covariance_of_single_points_is_whites():
