@@ -266,6 +266,8 @@ def one_run(
     run.update(
         final={"cm": final.translation_cm, "deg": final.rotation_deg},
         final_xyz={"cm": list(final.translation_xyz_cm), "deg": list(final.rotation_xyz_deg)},
+        # what result.json says of its own uncertainty: largest std (cm, °)
+        std=dict(zip(("cm", "deg"), result.std, strict=True)),
         seconds=time.perf_counter() - clock,
         converged=converged(result.passes, config),
         raised=None,
@@ -282,7 +284,8 @@ def _p(values: list[float], q: float) -> float | None:
 
 def summarise(runs: list[dict], frames: int) -> dict:
     """Success rate (raised runs count as failures), median and 90th percentile of the final
-    errors of the runs that returned, median seconds."""
+    errors of the runs that returned, the median of the largest std they reported (runs recorded
+    before it was kept have none), median seconds."""
     cm_ok, deg_ok = SUCCESS["multi" if frames > 1 else "single"]
     done = [r for r in runs if r["final"] is not None]
     success = [r["final"]["cm"] <= cm_ok and r["final"]["deg"] <= deg_ok for r in done]
@@ -299,6 +302,8 @@ def summarise(runs: list[dict], frames: int) -> dict:
         "cm_p90": _p(cm, 90),
         "deg_median": _p(deg, 50),
         "deg_p90": _p(deg, 90),
+        "std_cm_median": _p([r["std"]["cm"] for r in done if "std" in r], 50),
+        "std_deg_median": _p([r["std"]["deg"] for r in done if "std" in r], 50),
         "start_cm_median": _p([r["start"]["cm"] for r in runs], 50),
         "start_deg_median": _p([r["start"]["deg"] for r in runs], 50),
         "seconds_median": _p([r["seconds"] for r in runs], 50),
@@ -497,7 +502,8 @@ def progress_line(name: str, level: str, variant: str, run: dict, progress: dict
 
 HEADER = (
     f"{'dataset':28s} {'fr':>2s} {'level':>10s} {'variant':>12s} {'runs':>4s} {'success':>7s} "
-    f"{'cm med':>7s} {'cm p90':>7s} {'° med':>6s} {'° p90':>6s} {'raised':>6s} {'s/calib':>7s}"
+    f"{'cm med':>7s} {'cm p90':>7s} {'° med':>6s} {'° p90':>6s} {'σ cm':>6s} {'σ °':>6s} "
+    f"{'raised':>6s} {'s/calib':>7s}"
 )
 
 
@@ -515,6 +521,7 @@ def table_lines(name: str, row: dict) -> list[str]:
                 f"{name:28s} {row['frames']:2d} {f'{deg:g}°/{cm:g}cm':>10s} {VARIANTS[variant]:>12s} "
                 f"{s['runs']:4d} {_f(s['success_rate'], '7.0%')} {_f(s['cm_median'], '7.2f')} "
                 f"{_f(s['cm_p90'], '7.2f')} {_f(s['deg_median'], '6.3f')} {_f(s['deg_p90'], '6.3f')} "
+                f"{_f(s.get('std_cm_median'), '6.2f')} {_f(s.get('std_deg_median'), '6.3f')} "
                 f"{s['raised']:6d} {_f(s['seconds_median'], '7.1f')}"
             )
     return lines

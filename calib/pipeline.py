@@ -406,7 +406,8 @@ class Calibrator:
                     ),
                 }
             )
-        covariance_t, covariance_r = passes.covariance[:3, :3], passes.covariance[3:, 3:]
+        covariance = passes.reported_covariance
+        covariance_t, covariance_r = covariance[:3, :3], covariance[3:, 3:]
         weak = weak_directions(
             covariance_t,
             covariance_r,
@@ -418,7 +419,7 @@ class Calibrator:
             T_cam_lidar=passes.T_cam_lidar,
             initial_T_cam_lidar=T_init,
             reference_T_cam_lidar=frames[0].calibration.T_cam_lidar,
-            covariance=passes.covariance,
+            covariance=covariance,
             support=self.support.name,
             frame_indices=[int(i) for i in picks],
             correspondences=passes.correspondences,

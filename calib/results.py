@@ -43,7 +43,9 @@ class CalibrationResult:
         initial_T_cam_lidar: ``(4, 4)`` where it started.
         reference_T_cam_lidar: ``(4, 4)`` the data's own calibration, or ``None``.
         covariance: ``(6, 6)`` of the left perturbation ``δ = (ρ, ω)`` (metres, radians, camera
-            frame) about the estimate: ``T = exp(δ) · T*``.
+            frame) about the estimate: ``T = exp(δ) · T*``; cluster-robust over image cells
+            where ``refine.covariance_cell_deg`` is set (the matcher's errors are shared by
+            neighbouring points), else from independent residuals.
         support: name of the support source (``uniform``, ``offline:MAPS``, ``onnx``).
         frame_indices: the frames used, as positions in the sequence.
         correspondences: how many the last pass used.

@@ -67,6 +67,13 @@ def test_success_thresholds_and_raised_runs():
     assert multi["raised"] == 1 and multi["runs"] == 4
     assert multi["cm_median"] == 3.0  # of the three runs that returned
     assert multi["threshold_cm_deg"] == [2.0, 0.2] and single["threshold_cm_deg"] == [5.0, 0.5]
+    assert multi["std_cm_median"] is None  # none of these runs recorded its std
+
+
+def test_summary_takes_the_reported_std_of_runs_that_kept_it():
+    runs = [{**_run(1.0, 0.1), "std": {"cm": c, "deg": c / 10}} for c in (0.2, 0.4, 0.9)]
+    summary = bench_real.summarise([*runs, _run(2.0, 0.2)], frames=6)
+    assert summary["std_cm_median"] == 0.4 and summary["std_deg_median"] == pytest.approx(0.04)
 
 
 def _result(name: str, runs: int) -> dict:

@@ -431,7 +431,9 @@ def scan_timing(
 
 @dataclass(frozen=True)
 class PassesResult:
-    """``T_cam_lidar (4, 4)`` and ``covariance (6, 6)`` of the last accepted pass; ``passes`` one
+    """``T_cam_lidar (4, 4)`` and ``covariance (6, 6)`` (independent residuals) of the last
+    accepted pass, with its ``cell_covariance`` where ``refine.covariance_cell_deg`` asks for the
+    cluster-robust one (else ``None``); ``passes`` one
     dict per pass (iterations, cost, correspondences, alignment, update, accepted);
     ``correspondences`` used in the last accepted pass; ``start`` which start the passes took
     (0: ``T_init``, then the alternatives) and ``probe_alignments_px`` the median residual after
@@ -454,6 +456,13 @@ class PassesResult:
     time_offset_std_s: float | None = None
     time_offset_restarts: list[dict] = field(default_factory=list)
     probe_correspondences: list[int] = field(default_factory=list)
+    cell_covariance: np.ndarray | None = None
+
+    @property
+    def reported_covariance(self) -> np.ndarray:
+        """``(6, 6)`` what a calibration reports: the cluster-robust covariance where there is
+        one, else the independent one."""
+        return self.covariance if self.cell_covariance is None else self.cell_covariance
 
 
 def draw(
@@ -758,6 +767,7 @@ def refine_passes(
         last.time_offset_std_s,
         restarts,
         [int(n) for n in counts],
+        last.cell_covariance,
     )
 
 
@@ -775,8 +785,9 @@ def _pooled_fit(
     ``δt`` within a millisecond), drawn ``per_frame`` times as many; ``history`` and ``fits`` gain
     it. A correspondence is a LiDAR point and the image location the matcher found for it, whatever
     extrinsic it was measured under, so matchings near the answer pool; each pass's answer carries
-    the noise of its one matching, and the pooled fit averages them; its covariance is reported as
-    one matching's. Returns ``T, dt`` unchanged where fewer than two matchings are near."""
+    the noise of its one matching, and the pooled fit averages them; its independent covariance
+    is reported as one matching's (the cluster-robust one already counts errors its image cells
+    share). Returns ``T, dt`` unchanged where fewer than two matchings are near."""
     cm, deg = config.pool_within
     near = [
         matched

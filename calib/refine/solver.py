@@ -51,12 +51,14 @@ class RefineConfig(BaseModel):
     )
     initial_damping: float = Field(1e-3, gt=0, description="Levenberg–Marquardt λ at the start")
     covariance_cell_deg: float = Field(
-        0.0,
+        10.0,
         ge=0,
-        description="the covariance treats correspondences within one image cell of this size "
-        "(view angle) of one frame as one cluster of correlated errors (a cluster-robust sandwich; "
-        "the edge matcher smooths its flow over about 10° at full resolution, so neighbouring "
-        "residuals share their errors); 0: independent residuals, the normal equations' inverse",
+        description="result.json's covariance treats correspondences within one image cell of "
+        "this size (view angle) of one frame as one cluster of correlated errors (a cluster-robust "
+        "sandwich; the edge matcher smooths its flow over about 10° at full resolution, so "
+        "neighbouring residuals share their errors); 0: independent residuals, the normal "
+        "equations' inverse. The online filter always takes the independent one (its measurement "
+        "floor is set for it)",
     )
     noise_floor_px: float = Field(
         0.5,
@@ -73,7 +75,7 @@ class Refinement:
     Attributes:
         T_cam_lidar: ``(4, 4)`` the estimate ``exp(δ*) · T⁰``.
         covariance: ``(6, 6)`` of ``δ = (ρ, ω)`` about the estimate (metres, radians), from the
-            final normal equations scaled by the residual variance.
+            final normal equations scaled by the residual variance (independent residuals).
         iterations: accepted and rejected LM steps taken. cost, initial_cost: the objective.
         converged: the step fell below the tolerance before ``max_iterations``.
         residuals: ``(N, 2)`` pixels ``π(K, T p_i) − ũ_i`` at the estimate.
@@ -81,6 +83,8 @@ class Refinement:
         time_offset_std_s: its standard deviation with the extrinsic marginalised out (residual
             scale at least ``config.noise_floor_px``; ``inf`` where the motion cannot tell ``δt``
             from a translation); ``None`` when ``δt`` was held fixed.
+        cell_covariance: ``(6, 6)`` as ``covariance``, the cluster-robust sandwich over the
+            ``clusters`` given (:func:`cluster_covariance`); ``None`` without them.
     """
 
     T_cam_lidar: np.ndarray
@@ -92,6 +96,7 @@ class Refinement:
     residuals: np.ndarray
     time_offset_s: float | None = None
     time_offset_std_s: float | None = None
+    cell_covariance: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -231,7 +236,8 @@ def refine_extrinsic(
         uv_target: ``(N, 2)`` matched pixels ``ũ_i``. weights: ``(N,)`` non-negative ``s_i``.
         K: ``(3, 3)``. T_init: ``(4, 4)`` ``T⁰_cam_lidar``. time: the time offset's model.
         clusters: ``(N,)`` int, correspondences whose errors are correlated share an id: the
-            covariance is then the cluster-robust sandwich (:func:`cluster_covariance`).
+            result's ``cell_covariance`` is then the cluster-robust sandwich
+            (:func:`cluster_covariance`).
 
     Raises:
         NumericalError: fewer than 6 usable correspondences, points behind the camera at the
@@ -300,10 +306,11 @@ def refine_extrinsic(
     H, _ = _normal_equations(w, J, r)
     dof = max(2 * used - n_params, 1)
     variance = float((w * (r * r).sum(1)).sum() / dof)
-    covariance = (
-        torch.linalg.pinv(H) * variance
+    covariance = torch.linalg.pinv(H) * variance
+    cells = (
+        None
         if clusters is None
-        else cluster_covariance(H, w, J, r, torch.as_tensor(np.asarray(clusters)))
+        else cluster_covariance(H, w, J, r, torch.as_tensor(np.asarray(clusters)))[:6, :6].numpy()
     )
     offset_std = None
     if n_params == 7:  # δt's information once the extrinsic is marginalised out (Schur complement)
@@ -320,4 +327,5 @@ def refine_extrinsic(
         r.numpy(),
         offset if time is not None else None,
         offset_std,
+        cells,
     )

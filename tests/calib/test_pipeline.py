@@ -63,6 +63,24 @@ def test_calibrator_undoes_a_known_perturbation(frames):
     assert stored["error"]["translation_cm"] == pytest.approx(result.error.translation_cm)
 
 
+def test_calibration_reports_the_cluster_robust_covariance_and_the_same_estimate(frames):
+    """Image cells change what the result says of its uncertainty, never the estimate: errors
+    shared within a cell make the sandwich wider than the independent-residual covariance."""
+    T_ref = frames[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(1))
+    results = [
+        Calibrator(
+            config=FAST.model_copy(
+                update={"refine": FAST.refine.model_copy(update={"covariance_cell_deg": d})}
+            )
+        ).calibrate(frames, T_init)
+        for d in (0.0, 10.0)
+    ]
+    independent, cells = results
+    np.testing.assert_allclose(cells.T_cam_lidar, independent.T_cam_lidar, atol=1e-12)
+    assert all(c > i for c, i in zip(cells.std, independent.std, strict=True))
+
+
 def test_matcher_pyramid_reaches_where_the_finest_level_cannot(frames):
     """From 10 cm / 4° (25 px at the small camera, twice the EdgeMatcher's reach) the dense passes
     alone stay off; run first at working focal lengths of 90 and 180 px they converge. A level at

@@ -90,7 +90,7 @@ def test_cluster_covariance_matches_the_scatter_of_errors_shared_within_clusters
         fit = refine_extrinsic(points, uv, np.ones(1000), KITTI_K, T_ref, config, clusters=clusters)
         alone = refine_extrinsic(points, uv, np.ones(1000), KITTI_K, T_ref, config)
         estimates.append(se3_log(torch.as_tensor(fit.T_cam_lidar @ np.linalg.inv(T_ref))).numpy())
-        robust.append(np.sqrt(np.diag(fit.covariance)))
+        robust.append(np.sqrt(np.diag(fit.cell_covariance)))
         naive.append(np.sqrt(np.diag(alone.covariance)))
     scatter = np.std(estimates, axis=0)
     for part in (slice(0, 3), slice(3, 6)):  # translation, rotation
