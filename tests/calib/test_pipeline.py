@@ -343,11 +343,34 @@ def test_bad_extrinsics_and_learned_matchers_are_refused(frames):
         Calibrator(config=CalibrateConfig(matcher="flow"))
 
 
-def test_online_calibrator_closes_windows_and_tracks(frames):
+def test_online_calibrator_closes_windows_and_tracks(frames, monkeypatch):
+    """Windows of 3 frames every 2, tracked; the filter takes each window's independent-residual
+    covariance, the one its measurement floor was set for, not the cluster-robust one a
+    calibration reports."""
+    import calib.pipeline
+    from calib.refine.tracking import OnlineState
+
+    windows, fed = [], []
+    refine_passes, update = calib.pipeline.refine_passes, OnlineState.update
+
+    def passes_recorded(*args, **kwargs):
+        windows.append(refine_passes(*args, **kwargs))
+        return windows[-1]
+
+    def update_recorded(self, z, R, *args, **kwargs):
+        fed.append(R)
+        return update(self, z, R, *args, **kwargs)
+
+    monkeypatch.setattr(calib.pipeline, "refine_passes", passes_recorded)
+    monkeypatch.setattr(OnlineState, "update", update_recorded)
     T_ref = frames[0].calibration.T_cam_lidar
     T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(1))
     online = OnlineCalibrator(T_init, config=FAST)
     estimates = [online.push(f) for f in frames]
+    assert len(fed) == len(windows) == 3
+    for R, window in zip(fed, windows, strict=True):
+        assert R is window.covariance and window.cell_covariance is not None
+        assert not np.allclose(window.cell_covariance, window.covariance)
     closed = [e for e in estimates if e is not None]
     # windows of 3 frames every 2: [0-2], [2-4], [4-6]
     assert [(e.first_frame, e.last_frame) for e in closed] == [(0, 2), (2, 4), (4, 6)]
