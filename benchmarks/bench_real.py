@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from results_io import save_results
+from results_io import cpu_description, package_versions, save_results
 from rich.console import Console
 
 from calib.data import Frame, open_dataset
@@ -529,7 +529,8 @@ def table_lines(name: str, row: dict) -> list[str]:
 
 def merged(earlier: dict, new: dict) -> dict:
     """``new`` with the datasets, levels and variants of ``earlier`` that it did not run (a
-    benchmark in parts); ``runs`` and ``seconds`` become lists, one entry per part."""
+    benchmark in parts); ``runs`` and ``seconds`` become lists, one entry per part, and
+    ``packages`` lists each install (library versions and processor) the parts ran on once."""
     for part in ("real", "synthetic"):
         rows = dict(earlier.get(part, {}))
         for name, row in new[part].items():
@@ -546,6 +547,8 @@ def merged(earlier: dict, new: dict) -> dict:
     for key in ("runs", "seconds"):
         before = earlier.get(key, [])
         new[key] = [*(before if isinstance(before, list) else [before]), new[key]]
+    installs = [*earlier.get("packages", []), *new.get("packages", [])]
+    new["packages"] = [p for i, p in enumerate(installs) if p not in installs[:i]]
     return new
 
 
@@ -665,6 +668,9 @@ def main() -> None:
         "start_draw": "shell" if args.shell else "ball",
         "synthetic_seeds": list(synth_seeds),
         "machine": f"{platform.machine()}, {platform.python_version()}",
+        "packages": [
+            {**package_versions(), "cpu": cpu_description()}
+        ],  # one entry per install its parts ran on
         "real": {},
         "synthetic": {},
         "notes": notes,

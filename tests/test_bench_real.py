@@ -274,3 +274,17 @@ def test_the_ideal_lidar_world_changes_only_the_lasers_angle_errors():
     ideal = load_synth_config("urban", **bench_real.SYNTH_VARIANTS["ideal-lidar"])
     assert paired.lidar.laser_angle_std_deg > 0 and ideal.lidar.laser_angle_std_deg == 0
     assert ideal.model_copy(update={"lidar": paired.lidar}) == paired
+
+
+def test_results_name_the_numerical_libraries_they_were_measured_with():
+    from results_io import NUMERICAL_PACKAGES, cpu_description, package_versions
+
+    versions = package_versions()
+    assert list(versions) == list(NUMERICAL_PACKAGES)
+    assert versions["torch"] == torch.__version__ and versions["numpy"] == np.__version__
+    if Path("/proc/cpuinfo").is_file():  # Linux: the model and its vector extensions
+        assert cpu_description()
+    a, b, c = (_result(name, 2) for name in "abc")
+    a["packages"], b["packages"], c["packages"] = [versions], [{**versions, "numpy": "1.0"}], [versions]
+    parts = bench_real.merged(bench_real.merged(a, b), c)
+    assert parts["packages"] == [versions, {**versions, "numpy": "1.0"}]  # each install once
