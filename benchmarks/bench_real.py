@@ -668,9 +668,8 @@ def main() -> None:
         "start_draw": "shell" if args.shell else "ball",
         "synthetic_seeds": list(synth_seeds),
         "machine": f"{platform.machine()}, {platform.python_version()}",
-        "packages": [
-            {**package_versions(), "cpu": cpu_description()}
-        ],  # one entry per install its parts ran on
+        # one entry per install (libraries, processor) its parts ran on
+        "packages": [{**package_versions(), "cpu": cpu_description()}],
         "real": {},
         "synthetic": {},
         "notes": notes,
