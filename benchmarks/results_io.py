@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import platform
 from importlib import metadata
 from pathlib import Path
 
@@ -43,16 +44,10 @@ def cpu_description() -> str:
     fresh install; which processors and versions the earlier runs had was not recorded)."""
     info = Path("/proc/cpuinfo")
     if not info.is_file():
-        import platform
-
         return platform.processor()
-    text = info.read_text()
-    model = next(
-        (line.split(":", 1)[1].strip() for line in text.splitlines() if line.startswith("model name")), ""
-    )
-    flags = next(
-        (line.split(":", 1)[1].split() for line in text.splitlines() if line.startswith("flags")), []
-    )
+    fields = [line.split(":", 1) for line in info.read_text().splitlines() if ":" in line]
+    model = next((value.strip() for key, value in fields if key.strip() == "model name"), "")
+    flags = next((value.split() for key, value in fields if key.strip() == "flags"), [])
     vector = sorted(
         f for f in set(flags) if f in ("avx", "avx2", "fma", "avx_vnni") or f.startswith("avx512")
     )

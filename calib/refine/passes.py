@@ -821,7 +821,11 @@ def image_cells(uv: np.ndarray, frame: np.ndarray, K: np.ndarray, cell_deg: floa
         return None
     cell_px = float(K[0, 0]) * math.tan(math.radians(cell_deg))
     cells = np.column_stack([frame, np.floor(uv / cell_px)]).astype(np.int64)
-    return np.unique(cells, axis=0, return_inverse=True)[1].reshape(-1)
+    cells -= cells.min(axis=0)
+    # one integer per (frame, row, column) within the data's own extent: a flat unique is about
+    # ten times faster than a unique over rows, and numbers the cells in the same order
+    flat = np.ravel_multi_index(cells.T, cells.max(axis=0) + 1)
+    return np.unique(flat, return_inverse=True)[1].reshape(-1)
 
 
 def load_calibrate_config(path: Path | None = None) -> CalibrateConfig:

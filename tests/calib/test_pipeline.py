@@ -68,15 +68,14 @@ def test_calibration_reports_the_cluster_robust_covariance_and_the_same_estimate
     shared within a cell make the sandwich wider than the independent-residual covariance."""
     T_ref = frames[0].calibration.T_cam_lidar
     T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(1))
-    results = [
+    independent, cells = (
         Calibrator(
             config=FAST.model_copy(
                 update={"refine": FAST.refine.model_copy(update={"covariance_cell_deg": d})}
             )
         ).calibrate(frames, T_init)
         for d in (0.0, 10.0)
-    ]
-    independent, cells = results
+    )
     np.testing.assert_allclose(cells.T_cam_lidar, independent.T_cam_lidar, atol=1e-12)
     assert all(c > i for c, i in zip(cells.std, independent.std, strict=True))
 
