@@ -821,6 +821,8 @@ def image_cells(uv: np.ndarray, frame: np.ndarray, K: np.ndarray, cell_deg: floa
         return None
     cell_px = float(K[0, 0]) * math.tan(math.radians(cell_deg))
     cells = np.column_stack([frame, np.floor(uv / cell_px)]).astype(np.int64)
+    if len(cells) == 0:  # no correspondences: no cells
+        return np.zeros(0, np.int64)
     cells -= cells.min(axis=0)
     # one integer per (frame, row, column) within the data's own extent: a flat unique is about
     # ten times faster than a unique over rows, and numbers the cells in the same order
