@@ -13,10 +13,16 @@ correction counts as the reference's error only where the picture shows it.
 ``--picture NAME --crop x0,y0,x1,y1`` also draws that image region (full-resolution pixels) with
 the LiDAR's returns coloured by intensity, under the reference (left) and under ``T'`` (right):
 painted road markings show the offset by eye (the default crop is a dashed lane line of pjlab-1).
-Prints a table and writes ``benchmarks/results/bench_reference.json`` (and the picture beside it).
+``--compare PATH`` sets another answer beside the reference (a joint calibration's result.json):
+each ``--views`` crop is drawn under the reference, under the reference turned to the answer's
+rotation with its own translation (what the rotation alone does), and under the answer, the
+returns nearer than ``--near-m`` coloured by depth. Near objects at the image's sides show an
+error along the optical axis, which moves them apart or together (``(u − c) Δz / z``), where a
+rotation moves every point alike. Prints a table and writes
+``benchmarks/results/bench_reference.json`` (and the pictures beside it).
 
     .venv/bin/python benchmarks/bench_reference.py [--fixtures pjlab-1,pjlab-2,pjlab-3]
-        [--picture pjlab-1 --crop 450,840,780,1090]
+        [--picture pjlab-1 --crop 450,840,780,1090] [--compare result.json --views NAME:x0,y0,x1,y1 ...]
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from results_io import RESULTS, save_results
 from rich.console import Console
 
 from calib.data import Frame, open_dataset
+from calib.data.extrinsic_file import read_extrinsic
 from calib.data.real_fixtures import check_fixtures, realdata_root
 from calib.match.correspondences import Correspondences, match_frames
 from calib.match.edge_matcher import EdgeMatcher
@@ -84,8 +91,16 @@ def _median(matched: list[Correspondences]) -> float:
     return float(np.median(np.linalg.norm(np.concatenate([c.residual for c in matched]), axis=1)))
 
 
-def picture(frame: Frame, Ts: list[np.ndarray], crop: tuple[int, int, int, int], path: Path) -> None:
-    """Side by side, the crop with the scan's returns coloured by intensity under each of ``Ts``."""
+def picture(
+    frame: Frame,
+    Ts: list[np.ndarray],
+    crop: tuple[int, int, int, int],
+    path: Path,
+    near_m: float | None = None,
+    zoom: int = 3,
+) -> None:
+    """Side by side, the crop (zoomed ``zoom`` times) with the scan's returns under each of ``Ts``:
+    coloured by intensity, or (``near_m``) by depth, only those nearer than ``near_m``."""
     x0, y0, x1, y1 = crop
     panels = []
     for T in Ts:
@@ -93,23 +108,44 @@ def picture(frame: Frame, Ts: list[np.ndarray], crop: tuple[int, int, int, int],
             transform_points(torch.as_tensor(T), torch.as_tensor(frame.points[:, :3], dtype=torch.float64)),
             torch.as_tensor(frame.K),
         )
-        ahead = (depth > 0.5).numpy()
-        uv, intensity = uv.numpy()[ahead], frame.points[ahead, 3]
-        inside = (uv[:, 0] >= x0) & (uv[:, 0] < x1) & (uv[:, 1] >= y0) & (uv[:, 1] < y1)
-        level = np.clip(255 * intensity[inside] / max(np.percentile(intensity[inside], 98), 1e-6), 0, 255)
-        colours = cv2.applyColorMap(level.astype(np.uint8)[:, None], cv2.COLORMAP_HOT)[:, 0]
+        uv, depth = uv.numpy(), depth.numpy()
+        inside = (depth > 0.5) & (uv[:, 0] >= x0) & (uv[:, 0] < x1) & (uv[:, 1] >= y0) & (uv[:, 1] < y1)
+        if near_m is None:
+            intensity = frame.points[inside, 3]
+            level = np.clip(255 * intensity / max(np.percentile(intensity, 98), 1e-6), 0, 255)
+            colours = cv2.applyColorMap(level.astype(np.uint8)[:, None], cv2.COLORMAP_HOT)[:, 0]
+        else:
+            inside &= depth < near_m
+            level = np.clip(255 * depth[inside] / near_m, 0, 255)
+            colours = cv2.applyColorMap(level.astype(np.uint8)[:, None], cv2.COLORMAP_JET)[:, 0]
         panel = cv2.resize(
             cv2.cvtColor(frame.image[y0:y1, x0:x1], cv2.COLOR_RGB2BGR),
             None,
-            fx=3,
-            fy=3,
+            fx=zoom,
+            fy=zoom,
             interpolation=cv2.INTER_NEAREST,
         )
         for (u, v), c in zip(uv[inside], colours, strict=True):
-            cv2.circle(panel, (int((u - x0) * 3), int((v - y0) * 3)), 3, tuple(int(k) for k in c), -1)
+            cv2.circle(panel, (int((u - x0) * zoom), int((v - y0) * zoom)), 2, tuple(int(k) for k in c), -1)
         panels.append(panel)
     gap = np.full((panels[0].shape[0], 16, 3), 255, np.uint8)
-    cv2.imwrite(str(path), np.hstack([panels[0], gap, panels[1]]))
+    cv2.imwrite(str(path), np.hstack([p for panel in panels for p in (gap, panel)][1:]))
+
+
+def with_rotation_of(T: np.ndarray, T_other: np.ndarray) -> np.ndarray:
+    """``T`` with the rotation of ``T_other`` (its translation kept): what a rotation alone does."""
+    out = np.array(T, np.float64)
+    out[:3, :3] = T_other[:3, :3]
+    return out
+
+
+def _views(text: str) -> list[tuple[str, tuple[int, int, int, int]]]:
+    """``NAME:x0,y0,x1,y1 NAME:...`` as ``(name, crop)`` pairs."""
+    views = []
+    for item in text.split():
+        name, _, crop = item.partition(":")
+        views.append((name, tuple(int(v) for v in crop.split(","))))
+    return views
 
 
 def main() -> None:
@@ -120,10 +156,29 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5, help="match-and-fit rounds at most")
     parser.add_argument("--picture", default="pjlab-1", help="fixture to draw ('' for none)")
     parser.add_argument("--crop", default="450,840,780,1090", help="x0,y0,x1,y1 in its first frame's pixels")
+    parser.add_argument(
+        "--compare",
+        type=Path,
+        help="an answer to set beside the reference (a result.json, or 12 or 16 numbers, as --init "
+        "file: takes): each --views crop is drawn under the reference, the reference turned to the "
+        "answer's rotation (its translation kept), and the answer, with the returns nearer than "
+        "--near-m coloured by depth",
+    )
+    parser.add_argument(
+        "--views",
+        default="pjlab-1:1720,480,1920,780 pjlab-2:80,620,220,800",
+        help="space-separated NAME:x0,y0,x1,y1 crops of a fixture's first frame for --compare (the "
+        "default: a tree trunk at the right edge of pjlab-1, a car at the left edge of pjlab-2)",
+    )
+    parser.add_argument(
+        "--near-m", type=float, default=30.0, help="--compare pictures: returns nearer than this"
+    )
     args = parser.parse_args()
     root = realdata_root()
     if root is None:
         raise SystemExit("real fixtures absent (../shared/realdata, SUPPORTNET_REALDATA)")
+    answer = read_extrinsic(args.compare) if args.compare is not None else None
+    views = _views(args.views) if answer is not None else []
     config = load_calibrate_config().edge
     matcher = EdgeMatcher(config)
     clock = time.perf_counter()
@@ -162,6 +217,13 @@ def main() -> None:
             console.print(
                 f"{fixture.name}: {row['correction_deg']:.3f}° in {time.perf_counter() - clock:.0f} s"
             )
+            for k, (name, crop) in enumerate(views):
+                if name == fixture.name:
+                    path = RESULTS / f"bench_reference_{name}_compare{k}.png"
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    Ts = [T_ref, with_rotation_of(T_ref, answer), answer]
+                    picture(frames[0], Ts, crop, path, near_m=args.near_m)
+                    row.setdefault("compare_pictures", []).append(str(path))
             if fixture.name == args.picture:
                 path = RESULTS / f"bench_reference_{fixture.name}.png"
                 path.parent.mkdir(parents=True, exist_ok=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -45,3 +46,36 @@ def test_rotation_fit_recovers_a_known_turn(outliers):
     )
     fit = bench_reference.rotation_fit([corr], T, K, scale_px=2.0)
     np.testing.assert_allclose(np.degrees(fit), np.degrees(omega), atol=0.01 if outliers else 0.002)
+
+
+def test_with_rotation_of_takes_the_rotation_and_keeps_the_translation():
+    T = np.eye(4)
+    T[:3, 3] = [0.1, -0.2, 0.3]
+    other = bench_reference.turned(np.eye(4), np.radians([0.0, 2.0, 0.0]))
+    other[:3, 3] = [5.0, 5.0, 5.0]
+    mixed = bench_reference.with_rotation_of(T, other)
+    np.testing.assert_array_equal(mixed[:3, :3], other[:3, :3])
+    np.testing.assert_array_equal(mixed[:3, 3], T[:3, 3])
+    np.testing.assert_array_equal(mixed[3], [0, 0, 0, 1])
+
+
+def test_views_parse_name_and_crop():
+    assert bench_reference._views("pjlab-1:1,2,30,40 kitti:0,0,5,6") == [
+        ("pjlab-1", (1, 2, 30, 40)),
+        ("kitti", (0, 0, 5, 6)),
+    ]
+
+
+@pytest.mark.parametrize("near_m", [None, 30.0])
+def test_picture_sets_one_zoomed_panel_per_extrinsic_side_by_side(tmp_path, frames, near_m):
+    """Three extrinsics, a 100x50 crop zoomed 3x: three 300x150 panels and two 16 px gaps; the
+    returns drawn change the crop's pixels (coloured by intensity, or by depth near enough)."""
+    frame = frames[0]
+    T = frame.calibration.T_cam_lidar
+    path = tmp_path / "panels.png"
+    bench_reference.picture(frame, [T, T, T], (200, 40, 300, 90), path, near_m=near_m)
+    image = cv2.imread(str(path))
+    assert image.shape == (150, 3 * 300 + 2 * 16, 3)
+    crop = cv2.resize(frame.image[40:90, 200:300, ::-1], None, fx=3, fy=3, interpolation=cv2.INTER_NEAREST)
+    assert (image[:, :300] != crop).any()  # returns drawn
+    np.testing.assert_array_equal(image[:, 300:316], 255)  # the gap
