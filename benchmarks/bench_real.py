@@ -100,10 +100,10 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the last 3 matchings pooled"
     ),  # the packaged config with pool_matchings 3
-    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-h0": (
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-h2": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
-        "intensity 0.25, a pass that does not help undone at once"
-    ),  # the packaged config with halvings 0
+        "intensity 0.25, a pass that does not help halved twice before it is undone"
+    ),  # the packaged config until stop 60 (halvings 2)
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -223,7 +223,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "flow_coarse_frames": FLOW_COARSE_FRAMES if "flowcoarse3" in stages else None,
                 "probe_frames": PROBE_FRAMES if "probe4" in stages else None,
                 "pool_matchings": POOLED_MATCHINGS if "pool3" in stages else 1,
-                "halvings": 0 if "h0" in stages else base.halvings,
+                "halvings": 2 if "h2" in stages else base.halvings,
             }
         )
 

@@ -140,11 +140,21 @@ def with_rotation_of(T: np.ndarray, T_other: np.ndarray) -> np.ndarray:
 
 
 def _views(text: str) -> list[tuple[str, tuple[int, int, int, int]]]:
-    """``NAME:x0,y0,x1,y1 NAME:...`` as ``(name, crop)`` pairs."""
+    """``NAME:x0,y0,x1,y1 NAME:...`` as ``(name, crop)`` pairs.
+
+    Raises:
+        ValueError: an item without a name, or whose crop is not four integers with x0 < x1, y0 < y1.
+    """
     views = []
     for item in text.split():
         name, _, crop = item.partition(":")
-        views.append((name, tuple(int(v) for v in crop.split(","))))
+        try:
+            x0, y0, x1, y1 = (int(v) for v in crop.split(","))
+        except ValueError:
+            raise ValueError(f"{item!r}: expected NAME:x0,y0,x1,y1 (four integers)") from None
+        if not name or x1 <= x0 or y1 <= y0:
+            raise ValueError(f"{item!r}: expected NAME:x0,y0,x1,y1 with x0 < x1 and y0 < y1")
+        views.append((name, (x0, y0, x1, y1)))
     return views
 
 
@@ -178,7 +188,13 @@ def main() -> None:
     if root is None:
         raise SystemExit("real fixtures absent (../shared/realdata, SUPPORTNET_REALDATA)")
     answer = read_extrinsic(args.compare) if args.compare is not None else None
-    views = _views(args.views) if answer is not None else []
+    try:
+        views = _views(args.views) if answer is not None else []
+    except ValueError as error:
+        parser.error(f"--views {error}")
+    chosen = None if args.fixtures == "all" else set(args.fixtures.split(","))
+    if chosen is not None and (missing := {name for name, _ in views} - chosen):
+        parser.error(f"--views names fixtures not in --fixtures: {', '.join(sorted(missing))}")
     config = load_calibrate_config().edge
     matcher = EdgeMatcher(config)
     clock = time.perf_counter()

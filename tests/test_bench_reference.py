@@ -66,6 +66,14 @@ def test_views_parse_name_and_crop():
     ]
 
 
+@pytest.mark.parametrize(
+    "text", ["pjlab-1:1,2,30", "pjlab-1", ":1,2,30,40", "pjlab-1:30,2,1,40", "a:1,2,x,4"]
+)
+def test_views_refuse_a_malformed_crop_with_its_item(text):
+    with pytest.raises(ValueError, match="expected NAME:x0,y0,x1,y1"):
+        bench_reference._views(text)
+
+
 @pytest.mark.parametrize("near_m", [None, 30.0])
 def test_picture_sets_one_zoomed_panel_per_extrinsic_side_by_side(tmp_path, frames, near_m):
     """Three extrinsics, a 100x50 crop zoomed 3x: three 300x150 panels and two 16 px gaps; the
