@@ -195,15 +195,15 @@ def main() -> None:
     chosen = None if args.fixtures == "all" else set(args.fixtures.split(","))
     if chosen is not None and (missing := {name for name, _ in views} - chosen):
         parser.error(f"--views names fixtures not in --fixtures: {', '.join(sorted(missing))}")
+    RESULTS.mkdir(parents=True, exist_ok=True)  # the pictures go there
     config = load_calibrate_config().edge
     matcher = EdgeMatcher(config)
     clock = time.perf_counter()
     rows = []
     with tempfile.TemporaryDirectory() as work:
         fixtures = check_fixtures(root, Path(work))
-        wanted = None if args.fixtures == "all" else set(args.fixtures.split(","))
         for fixture in fixtures:
-            if wanted is not None and fixture.name not in wanted:
+            if chosen is not None and fixture.name not in chosen:
                 continue
             with open_dataset(fixture.path, camera=fixture.camera) as seq:
                 frames = [seq[i] for i in range(len(seq))]
@@ -236,13 +236,11 @@ def main() -> None:
             for k, (name, crop) in enumerate(views):
                 if name == fixture.name:
                     path = RESULTS / f"bench_reference_{name}_compare{k}.png"
-                    path.parent.mkdir(parents=True, exist_ok=True)
                     Ts = [T_ref, with_rotation_of(T_ref, answer), answer]
                     picture(frames[0], Ts, crop, path, near_m=args.near_m)
                     row.setdefault("compare_pictures", []).append(str(path))
             if fixture.name == args.picture:
                 path = RESULTS / f"bench_reference_{fixture.name}.png"
-                path.parent.mkdir(parents=True, exist_ok=True)
                 picture(frames[0], [T_ref, T_fit], tuple(int(v) for v in args.crop.split(",")), path)
                 row["picture"] = str(path)
     print(
