@@ -112,12 +112,16 @@ def picture(
         inside = (depth > 0.5) & (uv[:, 0] >= x0) & (uv[:, 0] < x1) & (uv[:, 1] >= y0) & (uv[:, 1] < y1)
         if near_m is None:
             intensity = frame.points[inside, 3]
-            level = np.clip(255 * intensity / max(np.percentile(intensity, 98), 1e-6), 0, 255)
-            colours = cv2.applyColorMap(level.astype(np.uint8)[:, None], cv2.COLORMAP_HOT)[:, 0]
+            scale = np.percentile(intensity, 98) if len(intensity) else 1.0
+            level, colour_map = np.clip(255 * intensity / max(scale, 1e-6), 0, 255), cv2.COLORMAP_HOT
         else:
             inside &= depth < near_m
-            level = np.clip(255 * depth[inside] / near_m, 0, 255)
-            colours = cv2.applyColorMap(level.astype(np.uint8)[:, None], cv2.COLORMAP_JET)[:, 0]
+            level, colour_map = np.clip(255 * depth[inside] / near_m, 0, 255), cv2.COLORMAP_JET
+        colours = (  # OpenCV maps an empty array to None: a crop without returns draws none
+            cv2.applyColorMap(level.astype(np.uint8)[:, None], colour_map)[:, 0]
+            if len(level)
+            else np.zeros((0, 3), np.uint8)
+        )
         panel = cv2.resize(
             cv2.cvtColor(frame.image[y0:y1, x0:x1], cv2.COLOR_RGB2BGR),
             None,
@@ -172,7 +176,7 @@ def main() -> None:
         help="an answer to set beside the reference (a result.json, or 12 or 16 numbers, as --init "
         "file: takes): each --views crop is drawn under the reference, the reference turned to the "
         "answer's rotation (its translation kept), and the answer, with the returns nearer than "
-        "--near-m coloured by depth",
+        "--near-m coloured by depth (0: every return, by intensity: road paint)",
     )
     parser.add_argument(
         "--views",
@@ -181,7 +185,10 @@ def main() -> None:
         "default: a tree trunk at the right edge of pjlab-1, a car at the left edge of pjlab-2)",
     )
     parser.add_argument(
-        "--near-m", type=float, default=30.0, help="--compare pictures: returns nearer than this"
+        "--near-m",
+        type=float,
+        default=30.0,
+        help="--compare pictures: returns nearer than this (0: every return, coloured by intensity)",
     )
     args = parser.parse_args()
     root = realdata_root()
@@ -237,7 +244,7 @@ def main() -> None:
                 if name == fixture.name:
                     path = RESULTS / f"bench_reference_{name}_compare{k}.png"
                     Ts = [T_ref, with_rotation_of(T_ref, answer), answer]
-                    picture(frames[0], Ts, crop, path, near_m=args.near_m)
+                    picture(frames[0], Ts, crop, path, near_m=args.near_m or None)
                     row.setdefault("compare_pictures", []).append(str(path))
             if fixture.name == args.picture:
                 path = RESULTS / f"bench_reference_{fixture.name}.png"

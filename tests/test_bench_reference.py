@@ -87,3 +87,19 @@ def test_picture_sets_one_zoomed_panel_per_extrinsic_side_by_side(tmp_path, fram
     crop = cv2.resize(frame.image[40:90, 200:300, ::-1], None, fx=3, fy=3, interpolation=cv2.INTER_NEAREST)
     assert (image[:, :300] != crop).any()  # returns drawn
     np.testing.assert_array_equal(image[:, 300:316], 255)  # the gap
+
+
+@pytest.mark.parametrize("near_m", [None, 0.6])
+def test_picture_of_a_crop_without_returns_is_the_image_alone(tmp_path, frames, near_m):
+    """No return in the crop (or none nearer than ``near_m``): the panels are the zoomed crop
+    itself, not an error (OpenCV colours an empty array as ``None``)."""
+    frame = frames[0]
+    T = frame.calibration.T_cam_lidar
+    path = tmp_path / "panels.png"
+    bench_reference.picture(frame, [T], (200, 40, 300, 90), path, near_m=near_m)
+    crop = cv2.resize(frame.image[40:90, 200:300, ::-1], None, fx=3, fy=3, interpolation=cv2.INTER_NEAREST)
+    if near_m is None:  # the same crop under an extrinsic that looks away: no return in view
+        T_away = T.copy()
+        T_away[:3, 3] += [0.0, 0.0, -1e3]
+        bench_reference.picture(frame, [T_away], (200, 40, 300, 90), path, near_m=None)
+    np.testing.assert_array_equal(cv2.imread(str(path)), crop)
