@@ -40,5 +40,8 @@ def test_variants_merge_into_the_packaged_config_and_validate():
     assert not bench_online.configured("no-moving").outliers.moving.enabled
     smooth = bench_online.configured("smooth")
     assert smooth.online.process_std == (0.3, 0.05) and smooth.online.window == 10
+    finest = bench_online.configured("finest")  # one key of a group; the group's others kept
+    assert finest.edge.working_focal_px == 721.5 and finest.edge.intensity_weight == 0.25
+    assert finest.edge.window == bench_online.load_calibrate_config().edge.window
     packaged = bench_online.configured("packaged")
     assert packaged == bench_online.load_calibrate_config()
