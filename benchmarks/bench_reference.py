@@ -143,6 +143,21 @@ def with_rotation_of(T: np.ndarray, T_other: np.ndarray) -> np.ndarray:
     return out
 
 
+def _crop(text: str, form: str = "x0,y0,x1,y1") -> tuple[int, int, int, int]:
+    """``x0,y0,x1,y1`` as four integers.
+
+    Raises:
+        ValueError: not four integers with x0 < x1 and y0 < y1 (the message names ``form``).
+    """
+    try:
+        x0, y0, x1, y1 = (int(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"expected {form} (four integers)") from None
+    if x1 <= x0 or y1 <= y0:
+        raise ValueError(f"expected {form} with x0 < x1 and y0 < y1")
+    return x0, y0, x1, y1
+
+
 def _views(text: str) -> list[tuple[str, tuple[int, int, int, int]]]:
     """``NAME:x0,y0,x1,y1 NAME:...`` as ``(name, crop)`` pairs.
 
@@ -153,12 +168,11 @@ def _views(text: str) -> list[tuple[str, tuple[int, int, int, int]]]:
     for item in text.split():
         name, _, crop = item.partition(":")
         try:
-            x0, y0, x1, y1 = (int(v) for v in crop.split(","))
-        except ValueError:
-            raise ValueError(f"{item!r}: expected NAME:x0,y0,x1,y1 (four integers)") from None
-        if not name or x1 <= x0 or y1 <= y0:
-            raise ValueError(f"{item!r}: expected NAME:x0,y0,x1,y1 with x0 < x1 and y0 < y1")
-        views.append((name, (x0, y0, x1, y1)))
+            if not name:
+                raise ValueError("expected NAME:x0,y0,x1,y1 (a name)")
+            views.append((name, _crop(crop, "NAME:x0,y0,x1,y1")))
+        except ValueError as error:
+            raise ValueError(f"{item!r}: {error}") from None
     return views
 
 
@@ -197,8 +211,9 @@ def main() -> None:
     answer = read_extrinsic(args.compare) if args.compare is not None else None
     try:
         views = _views(args.views) if answer is not None else []
+        crop = _crop(args.crop)
     except ValueError as error:
-        parser.error(f"--views {error}")
+        parser.error(f"--views or --crop: {error}")
     chosen = None if args.fixtures == "all" else set(args.fixtures.split(","))
     if chosen is not None and (missing := {name for name, _ in views} - chosen):
         parser.error(f"--views names fixtures not in --fixtures: {', '.join(sorted(missing))}")
@@ -248,7 +263,7 @@ def main() -> None:
                     row.setdefault("compare_pictures", []).append(str(path))
             if fixture.name == args.picture:
                 path = RESULTS / f"bench_reference_{fixture.name}.png"
-                picture(frames[0], [T_ref, T_fit], tuple(int(v) for v in args.crop.split(",")), path)
+                picture(frames[0], [T_ref, T_fit], crop, path)
                 row["picture"] = str(path)
     print(
         f"{'dataset':24} {'corr':>6} {'δR x / y / z (°, camera)':>26} {'|δR| °':>7} "

@@ -41,7 +41,13 @@ def test_variants_merge_into_the_packaged_config_and_validate():
     smooth = bench_online.configured("smooth")
     assert smooth.online.process_std == (0.3, 0.05) and smooth.online.window == 10
     finest = bench_online.configured("finest")  # one key of a group; the group's others kept
+    packaged_config = bench_online.load_calibrate_config()
     assert finest.edge.working_focal_px == 721.5 and finest.edge.intensity_weight == 0.25
-    assert finest.edge.window == bench_online.load_calibrate_config().edge.window
+    assert finest.edge.window == packaged_config.edge.window
+    # the variant is the packaged finest level's: a change there must change it too
+    assert (finest.edge.working_focal_px, finest.edge.intensity_weight) == (
+        packaged_config.finest_focal_px,
+        packaged_config.fine_intensity_weight,
+    )
     packaged = bench_online.configured("packaged")
     assert packaged == bench_online.load_calibrate_config()

@@ -74,6 +74,13 @@ def test_views_refuse_a_malformed_crop_with_its_item(text):
         bench_reference._views(text)
 
 
+def test_crop_parses_four_integers_and_refuses_an_empty_box():
+    assert bench_reference._crop("450,840,780,1090") == (450, 840, 780, 1090)
+    for text in ("450,840,780", "450,840,450,1090", "a,1,2,3"):
+        with pytest.raises(ValueError, match="expected x0,y0,x1,y1"):
+            bench_reference._crop(text)
+
+
 @pytest.mark.parametrize("near_m", [None, 30.0])
 def test_picture_sets_one_zoomed_panel_per_extrinsic_side_by_side(tmp_path, frames, near_m):
     """Three extrinsics, a 100x50 crop zoomed 3x: three 300x150 panels and two 16 px gaps; the
