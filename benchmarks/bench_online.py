@@ -68,6 +68,8 @@ VARIANTS: dict[str, dict] = {
     "pool3": {"pool_matchings": 3},
     # the windows matched as the packaged finest level (721.5 px, intensity 0.25; stop 53 had it as code)
     "finest": {"edge": {"working_focal_px": 721.5, "intensity_weight": 0.25}},
+    # the cost volume's sums over samples inside the image alone (stop 62)
+    "border-inside": {"edge": {"border": "inside"}},
 }
 """Config overrides merged over the packaged ``calibrate.yaml`` (top-level groups as dicts)."""
 

@@ -104,6 +104,10 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, a pass that does not help halved twice before it is undone"
     ),  # the packaged config until stop 60 (halvings 2)
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-inside": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the cost volume's sums inside the image"
+    ),  # the packaged config with edge.border inside
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -201,6 +205,8 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
             edge = edge.model_copy(update={"intensity_weight": LOW_INTENSITY_WEIGHT})
         if "ss4" in stages:
             edge = edge.model_copy(update=SUPERSAMPLED)
+        if "inside" in stages:
+            edge = edge.model_copy(update={"border": "inside"})
         flow_coarse = "flowcoarse" in stages or "flowcoarse3" in stages
         fine_weight = LOW_INTENSITY_WEIGHT if "iwfine" in stages or "iwfine360" in stages else None
         fine_from = edge.working_focal_px if "iwfine360" in stages else None

@@ -188,14 +188,17 @@ def test_the_packaged_variant_is_the_packaged_config():
     """The README's rows of ``PACKAGED`` measure what ``calibrate`` runs (and what
     ``bench_real.py`` runs by default); ``global-pyramid`` stays the default before full resolution
     (finest passes at 360 px), ``global-pyramid-fullres-iwfine360`` the one before the flow start;
-    ``pool3`` the packaged one with three matchings pooled."""
+    ``pool3`` the packaged one with three matchings pooled, ``inside`` with ``edge.border: inside``."""
     from calib.refine.passes import load_calibrate_config
 
-    pooled = f"{bench_real.PACKAGED}-pool3"
-    names = [bench_real.PACKAGED, pooled, "global-pyramid-fullres-iwfine360", "global-pyramid"]
+    pooled, inside = f"{bench_real.PACKAGED}-pool3", f"{bench_real.PACKAGED}-inside"
+    names = [bench_real.PACKAGED, pooled, inside, "global-pyramid-fullres-iwfine360", "global-pyramid"]
     configs = bench_real.variant_configs(names)
-    assert configs[bench_real.PACKAGED] == load_calibrate_config()
-    assert configs[pooled] == load_calibrate_config().model_copy(update={"pool_matchings": 3})
+    packaged = load_calibrate_config()
+    assert configs[bench_real.PACKAGED] == packaged
+    assert configs[pooled] == packaged.model_copy(update={"pool_matchings": 3})
+    edge = packaged.edge.model_copy(update={"border": "inside"})
+    assert configs[inside] == packaged.model_copy(update={"edge": edge})
     before = configs["global-pyramid-fullres-iwfine360"]
     assert before == load_calibrate_config().model_copy(
         update={

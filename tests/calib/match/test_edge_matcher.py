@@ -135,11 +135,12 @@ def _boxes_frame(seed: int, mirror: bool) -> tuple[Frame, np.ndarray]:
     ), T
 
 
-def test_the_cost_volume_leans_no_way_at_the_image_border():
-    """A field against itself peaks at zero displacement in the outermost rows and columns too.
-    Before, a displaced window centred past the border read an image RMS of 0 and won: the
-    outermost two rows and columns peaked 1.4 px outward on average (the flow leaned 0.8 px
-    down over the bottom rows of the synthetic urban world, where its nearest ground is)."""
+@pytest.mark.parametrize("inside", [False, True])
+def test_the_cost_volume_at_the_image_border(inside):
+    """A field against itself: away from the border the peak is at zero displacement. At the
+    border the zero-padded cost (``border: zero``) leans outward, about 1.4 px in the outermost two
+    rows and columns (a displaced window centred past the border reads an image RMS of 0 and
+    wins); ``border: inside`` peaks at zero there too."""
     H, W, radius, window = 48, 64, 2, 15
     n = 2 * radius + 1
     leans = []
@@ -148,13 +149,25 @@ def test_the_cost_volume_leans_no_way_at_the_image_border():
         field = np.stack(
             [cv2.GaussianBlur(c, (0, 0), 1.5) for c in rng.normal(size=(2, H, W)).astype(np.float32)]
         )
-        _, best, _ = _normalised_cost(field, field, radius, window)
+        _, best, _ = _normalised_cost(field, field, radius, window, inside)
         dv, du = (best // n - radius).reshape(H, W), (best % n - radius).reshape(H, W)
         leans.append([-dv[:2].mean(), dv[-2:].mean(), -du[:, :2].mean(), du[:, -2:].mean()])
-        far = window // 2 + radius  # windows that reach neither the border nor past it: exactly zero
+        far = window // 2 + radius  # windows that reach neither the border nor past it
         assert (dv[far:-far, far:-far] == 0).all() and (du[far:-far, far:-far] == 0).all()
+        if inside:
+            assert (dv == 0).all() and (du == 0).all()
     outward = np.mean(leans, axis=0)  # top, bottom, left, right
-    assert np.abs(outward).max() < 0.3, outward
+    if not inside:
+        assert (outward > 1.0).all(), outward
+
+
+def test_the_inside_border_reads_as_the_zero_one_away_from_the_border():
+    rng = np.random.default_rng(5)
+    lidar, image = rng.normal(size=(2, 2, 40, 60)).astype(np.float32)
+    zero, _, _ = _normalised_cost(lidar, image, 2, 11, inside=False)
+    inside, _, _ = _normalised_cost(lidar, image, 2, 11, inside=True)
+    far = 11 // 2 + 2 + 2  # the window, the radius and the displacement reach no border sample
+    np.testing.assert_allclose(inside[:, far:-far, far:-far], zero[:, far:-far, far:-far], rtol=1e-4)
 
 
 def test_residuals_under_the_truth_lean_no_way_of_their_own():
