@@ -7,6 +7,8 @@ than at the truth (0.32 against 0.25 at σ = 1°), so the known answers are on r
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -83,9 +85,12 @@ def test_the_calibrator_records_both_coarse_stages(urban):
     # of those that kept coarse_min_share of the most correspondences any start kept
     least = config.coarse_min_share * max(counts.values())
     eligible = {origin: px for origin, px in after.items() if counts[origin] >= least}
-    best = min((o for o in eligible if o != "initial"), key=eligible.get)
+    others = {origin: px for origin, px in eligible.items() if origin != "initial"}
+    best = min(others, key=others.get) if others else "initial"
     # another start than the initial is taken only where it ends clearly better aligned
-    clearly = "initial" not in eligible or eligible[best] <= config.coarse_margin * eligible["initial"]
+    clearly = (
+        "initial" not in eligible or others.get(best, math.inf) <= config.coarse_margin * eligible["initial"]
+    )
     assert choice["kept"] == (best if clearly else "initial")
     assert len(result.passes) == 1
 
