@@ -52,5 +52,4 @@ def test_variants_merge_into_the_packaged_config_and_validate():
     inside = bench_online.configured("border-inside")
     assert inside.edge.border == "inside"
     assert inside.edge.model_copy(update={"border": "zero"}) == packaged_config.edge
-    packaged = bench_online.configured("packaged")
-    assert packaged == bench_online.load_calibrate_config()
+    assert bench_online.configured("packaged") == packaged_config

@@ -525,6 +525,11 @@ def _window_counts(n: int, k: int) -> np.ndarray:
     return (np.minimum(i + r, n - 1) - np.maximum(i - r, 0) + 1).astype(np.float32)
 
 
+def _box_sum(x: np.ndarray, k: int) -> np.ndarray:
+    """Sum over a ``k x k`` window of ``x (H, W)``, zero outside the image."""
+    return cv2.boxFilter(x, -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+
+
 def _box(x: np.ndarray, k: int) -> np.ndarray:
     """Mean over a ``k x k`` window of ``x (C, H, W)`` (clipped at the borders), same size out.
 
@@ -533,11 +538,7 @@ def _box(x: np.ndarray, k: int) -> np.ndarray:
     """
     _, H, W = x.shape
     count = np.outer(_window_counts(H, k), _window_counts(W, k))
-    sums = [
-        cv2.boxFilter(np.ascontiguousarray(c), -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
-        for c in x
-    ]
-    return np.stack(sums) / count
+    return np.stack([_box_sum(np.ascontiguousarray(c), k) for c in x]) / count
 
 
 def _downsample(x: np.ndarray) -> np.ndarray:
@@ -612,11 +613,6 @@ def _normalised_cost(
             np.copyto(best, k, where=out[k].ravel() > peak)
             np.maximum(peak, out[k].ravel(), out=peak)
     return out, best, peak
-
-
-def _box_sum(x: np.ndarray, k: int) -> np.ndarray:
-    """Sum over a ``k x k`` window of ``x (H, W)`` float32, zero outside the image."""
-    return cv2.boxFilter(x, -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
 
 
 def _warp(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
