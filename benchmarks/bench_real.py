@@ -108,6 +108,14 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the cost volume's sums inside the image"
     ),  # the packaged config with edge.border inside
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-own": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, edge pixels carried at their own depth"
+    ),  # the packaged config with edge.carry own
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-inside-own": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the cost volume's sums inside the image, edge pixels carried at their own depth"
+    ),  # the packaged config with edge.border inside and edge.carry own
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -207,6 +215,8 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
             edge = edge.model_copy(update=SUPERSAMPLED)
         if "inside" in stages:
             edge = edge.model_copy(update={"border": "inside"})
+        if "own" in stages:
+            edge = edge.model_copy(update={"carry": "own"})
         flow_coarse = "flowcoarse" in stages or "flowcoarse3" in stages
         fine_weight = LOW_INTENSITY_WEIGHT if "iwfine" in stages or "iwfine360" in stages else None
         fine_from = edge.working_focal_px if "iwfine360" in stages else None

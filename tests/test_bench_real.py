@@ -188,17 +188,20 @@ def test_the_packaged_variant_is_the_packaged_config():
     """The README's rows of ``PACKAGED`` measure what ``calibrate`` runs (and what
     ``bench_real.py`` runs by default); ``global-pyramid`` stays the default before full resolution
     (finest passes at 360 px), ``global-pyramid-fullres-iwfine360`` the one before the flow start;
-    ``pool3`` the packaged one with three matchings pooled, ``inside`` with ``edge.border: inside``."""
+    ``pool3`` the packaged one with three matchings pooled, ``inside`` with ``edge.border: inside``,
+    ``own`` with ``edge.carry: own``."""
     from calib.refine.passes import load_calibrate_config
 
-    pooled, inside = f"{bench_real.PACKAGED}-pool3", f"{bench_real.PACKAGED}-inside"
-    names = [bench_real.PACKAGED, pooled, inside, "global-pyramid-fullres-iwfine360", "global-pyramid"]
+    pooled, inside, own = (f"{bench_real.PACKAGED}-{v}" for v in ("pool3", "inside", "own"))
+    names = [bench_real.PACKAGED, pooled, inside, own, "global-pyramid-fullres-iwfine360", "global-pyramid"]
     configs = bench_real.variant_configs(names)
     packaged = load_calibrate_config()
     assert configs[bench_real.PACKAGED] == packaged
     assert configs[pooled] == packaged.model_copy(update={"pool_matchings": 3})
     edge = packaged.edge.model_copy(update={"border": "inside"})
     assert configs[inside] == packaged.model_copy(update={"edge": edge})
+    edge = packaged.edge.model_copy(update={"carry": "own"})
+    assert configs[own] == packaged.model_copy(update={"edge": edge})
     before = configs["global-pyramid-fullres-iwfine360"]
     assert before == load_calibrate_config().model_copy(
         update={
