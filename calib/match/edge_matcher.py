@@ -400,7 +400,8 @@ class VirtualView:
         R_cam_lidar: ``(3, 3)`` the orientation it was drawn under.
         pixels: ``(2, M)`` int64 ``(u, v)`` of its ``M`` edge pixels.
         values: ``(2, M)`` float32 the orientation field there.
-        nearer: ``(M,)`` float32 inverse depth each edge pixel is carried at (its nearer side, or its own: ``config.carry``).
+        nearer: ``(M,)`` float32 inverse depth each edge pixel is carried at (its nearer side,
+            or its own: ``config.carry``).
         inverse_depth: ``(H, W)`` float32 of the nearest return (0 in open sky).
     """
 
@@ -451,7 +452,7 @@ class VirtualView:
         # the nearer side of an edge: the largest inverse depth within 3 px, as far as a step's
         # gradient reaches (blur σ 0.7 and Sobel; 0 in open sky: no parallax)
         nearer = ndimage.maximum_filter(inverse_depth, size=7)[rows, cols]
-        if config.carry == "own":  # a smooth surface carries each pixel at its own depth, a step at its nearer side
+        if config.carry == "own":  # a smooth surface: each pixel at its own depth; a step: its nearer side
             own = inverse_depth[rows, cols]
             nearer = np.where(nearer >= STEP_RATIO * own, nearer, own)
         return cls(
