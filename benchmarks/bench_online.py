@@ -70,6 +70,8 @@ VARIANTS: dict[str, dict] = {
     "finest": {"edge": {"working_focal_px": 721.5, "intensity_weight": 0.25}},
     # the cost volume's sums over samples inside the image alone (stop 62)
     "border-inside": {"edge": {"border": "inside"}},
+    # each edge pixel of the LiDAR's virtual view carried at its own depth unless at a step (stop 63)
+    "carry-own": {"edge": {"carry": "own"}},
 }
 """Config overrides merged over the packaged ``calibrate.yaml`` (top-level groups as dicts)."""
 

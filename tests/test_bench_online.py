@@ -52,4 +52,7 @@ def test_variants_merge_into_the_packaged_config_and_validate():
     inside = bench_online.configured("border-inside")
     assert inside.edge.border == "inside"
     assert inside.edge.model_copy(update={"border": "zero"}) == packaged_config.edge
+    own = bench_online.configured("carry-own")
+    assert own.edge.carry == "own"
+    assert own.edge.model_copy(update={"carry": "nearer"}) == packaged_config.edge
     assert bench_online.configured("packaged") == packaged_config
