@@ -137,13 +137,13 @@ class EdgeMatcherConfig(BaseModel):
         "1.01 cm, 0.080 -> 0.149 deg), and moves six KITTI frames' answers from 1.6 to 3.7 cm "
         "(medians) from the reference",
     )
-
     carry: Literal["nearer", "own"] = Field(
         "nearer",
         description="the depth each edge pixel of the LiDAR's virtual view is carried into the camera "
         "at (VirtualView.draw): nearer, the largest inverse depth within 3 px (right at an occluding "
-        "step, but on ground seen at a slant a few % nearer than the pixel: about 1 px down on the "
-        "vineyard's near ground, 35 cm of parallax); own, the pixel's own inverse depth unless that "
+        "step, but on ground seen at a slant a few % nearer than the pixel, which a camera below the "
+        "LiDAR sees too high: up to about 1 px on the vineyard's near ground, 35 cm of parallax); "
+        "own, the pixel's own inverse depth unless that "
         "largest one is STEP_RATIO times it or more (a step: its nearer side). README, stop 63: own "
         "takes the synthetic vineyard from 0.63 to 0.46 cm and urban from 0.98 to 0.88 cm, but six KITTI "
         "frames from 1.82 to 1.96 cm (medians) from the reference and online urban from 1.71 to 2.19 cm",
