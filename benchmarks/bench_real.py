@@ -116,6 +116,14 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the cost volume's sums inside the image, edge pixels carried at their own depth"
     ),  # the packaged config with edge.border inside and edge.carry own
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-settle1": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, a pass under 0.1 working px settles its level unchecked"
+    ),  # the packaged config with settle_px 0.1
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-settle2": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, a pass under 0.2 working px settles its level unchecked"
+    ),  # the packaged config with settle_px 0.2
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -146,6 +154,9 @@ INTENSITY_WEIGHT = 0.5
 LOW_INTENSITY_WEIGHT = 0.25
 """The ``iw25`` / ``iwfine`` variants' intensity edge weight:
 everywhere, at the finest level, or (``iwfine360``) from 360 px on."""
+SETTLE_PX = {"settle1": 0.1, "settle2": 0.2}
+"""The ``settle`` variants' ``settle_px``: a pass moving the matched points less than this
+(working px) settles its level without the matching that would check it."""
 POOLED_MATCHINGS = 3
 """The ``pool3`` variants' ``pool_matchings``: a last fit over the last three matchings near the answer."""
 SUPERSAMPLED = {"supersample": 4, "redraw_px": 4.0}
@@ -240,6 +251,9 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "probe_frames": PROBE_FRAMES if "probe4" in stages else None,
                 "pool_matchings": POOLED_MATCHINGS if "pool3" in stages else 1,
                 "halvings": 2 if "h2" in stages else base.halvings,
+                "settle_px": next(
+                    (SETTLE_PX[stage] for stage in stages if stage in SETTLE_PX), base.settle_px
+                ),
             }
         )
 

@@ -59,8 +59,9 @@ class CalibrationResult:
         time_offset_note: how ``δt`` was found, or why it was held.
         time_offset_reference_s: the frames' camera stamp minus LiDAR stamp, where known.
         moving_points: per used frame, the points left out as moving (:mod:`calib.moving`).
-        stage_seconds: seconds per stage, in the order they ran (``frames``, ``global``,
-            ``pyramid 90 px``, ..., ``finest``).
+        stage_seconds: seconds per stage, in the order they ran (``frames``, ``global``, or
+            ``global and flow, side by side`` where the learned matcher's passes run beside the
+            global search, ``probe``, ``pyramid 90 px``, ..., ``finest``).
     """
 
     T_cam_lidar: np.ndarray

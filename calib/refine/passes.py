@@ -277,6 +277,13 @@ class CalibrateConfig(BaseModel):
         "resolution, one frame's passes then start at the half-resolution level, whose reach in "
         "angle is twice the finest's",
     )
+    settle_px: NonNegativeFloat = Field(
+        0.0,
+        description="a pass whose update moves the correspondences by less than this (median, pixels "
+        "at the matcher's working focal length), with δt moved less than 0.1 ms, settles its level "
+        "without the matching that would check it (that matching decides only whether so small a step "
+        "stays; 0: every pass is checked)",
+    )
     check_below_px: float = Field(
         3.0,
         gt=0,
@@ -341,6 +348,11 @@ class ScanTiming:
     estimate: bool = True
     max_std_s: float = 0.002
     restarts_s: tuple[float, ...] = ()
+    # the last few frames_at answers, with the frames they moved: every matching of a level
+    # where δt is held asks for the same ones (a tenth of a second per ten full scans)
+    _moved: list[tuple[float, Sequence[Frame], list[Frame]]] = field(
+        default_factory=list, init=False, repr=False, compare=False
+    )
 
     @classmethod
     def of(
@@ -369,8 +381,13 @@ class ScanTiming:
         )
 
     def frames_at(self, frames: Sequence[Frame], offset_s: float) -> list[Frame]:
-        """``frames`` as the camera saw them: their points moved ``offset_s`` after each stamp."""
-        return [
+        """``frames`` as the camera saw them: their points moved ``offset_s`` after each stamp
+        (the same list again for the same frames and offset)."""
+        for offset, originals, moved in self._moved:
+            if offset == offset_s and len(originals) == len(frames):
+                if all(a is b for a, b in zip(originals, frames, strict=True)):
+                    return moved
+        moved = [
             replace(
                 frame,
                 points=np.column_stack([motion.at(q, offset_s), frame.points[:, 3:]]).astype(
@@ -380,6 +397,12 @@ class ScanTiming:
             )
             for frame, motion, q in zip(frames, self.motions, self.stamp, strict=True)
         ]
+        self._moved[:] = [*self._moved[-(MOVED_KEPT - 1) :], (offset_s, list(frames), moved)]
+        return moved
+
+
+MOVED_KEPT = 2
+"""How many answers of :meth:`ScanTiming.frames_at` each timing keeps."""
 
 
 def sweep_model(config: TimeOffsetConfig) -> Callable[[np.ndarray], np.ndarray] | None:
@@ -594,6 +617,14 @@ def refine_passes(
             result = solve(TimeModel(scans, twists, dt, False))
         return result
 
+    working = min(1.0, config.edge.working_focal_px / K[0, 0])  # the matcher's pixels per frame pixel
+    needs_alignment = timing is not None and bool(timing.restarts_s)  # the δt restarts compare with it
+
+    def settles(entry: dict, dt_before: float | None, dt: float | None) -> bool:
+        """Whether a pass settles its level unchecked (``config.settle_px``)."""
+        moved_s = 0.0 if dt is None or dt_before is None else abs(dt - dt_before)
+        return entry["update_px"] < config.settle_px and moved_s < SETTLE_TIME_S
+
     def one_pass(
         T: np.ndarray, dt: float | None, matched: list[Correspondences], alignment: float, pooled: int = 1
     ) -> tuple[Refinement, dict]:
@@ -640,6 +671,7 @@ def refine_passes(
         if timing is not None:
             entry["time_offset_s"] = result.time_offset_s
             entry["time_offset_std_s"] = result.time_offset_std_s  # None: held (not observable)
+        entry["update_px"] = _update_px(matched, T, result.T_cam_lidar, K, working)
         return result, entry
 
     def descend(
@@ -690,8 +722,12 @@ def refine_passes(
             history.append(entry)
             fits.append((result, entry["correspondences"]))
             T_before, T, dt_before, dt = T, result.T_cam_lidar, dt, result.time_offset_s
+            if settles(entry, dt_before, dt):
+                entry["settled"] = True  # accepted unchecked: too small a step for a matching to judge
+                break
         unchecked = history and history[-1]["accepted"] and "alignment_after_px" not in history[-1]
-        if math.isnan(alignment) or unchecked:  # the last pass was not matched after: match now
+        settled = history and history[-1].get("settled", False) and not needs_alignment
+        if (math.isnan(alignment) or unchecked) and not settled:  # not matched after the last pass
             alignment = matched_under(T, dt)[1]
         return T, dt, alignment
 
@@ -769,6 +805,25 @@ def refine_passes(
         [int(n) for n in counts],
         last.cell_covariance,
     )
+
+
+SETTLE_TIME_S = 1e-4
+"""``settle_px``: a pass settles its level only where it moved δt less than this too."""
+
+
+def _update_px(
+    matched: list[Correspondences], T_before: np.ndarray, T_after: np.ndarray, K: np.ndarray, scale: float
+) -> float:
+    """The median image motion (pixels of ``K``, times ``scale``) of a pass from ``T_before`` to
+    ``T_after (4, 4)``, over (at most about 5000 of) the matched points it was fitted to."""
+    points = np.concatenate([c.points_lidar for c in matched])
+    points = points[:: max(1, len(points) // 5000)]
+    uv = []
+    for T in (T_before, T_after):
+        q = points @ T[:3, :3].T + T[:3, 3]
+        uvw = q @ K.T
+        uv.append(uvw[:, :2] / np.maximum(uvw[:, 2:], 1e-9))
+    return float(np.median(np.linalg.norm(uv[1] - uv[0], axis=1)) * scale) if len(points) else math.inf
 
 
 def _pooled_fit(

@@ -14,9 +14,10 @@ import torch
 from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import AMZ_DRIVE, AMZ_DRIVE_MORE
 from calib.geometry import calibration_error, perturb
+from calib.match.edge_alignment import EdgeAlignment
 from calib.pipeline import Calibrator
 from calib.refine.contour_refine import ContourRefineConfig, contour_refine
-from calib.refine.global_search import GlobalSearchConfig, global_search
+from calib.refine.global_search import GlobalSearchConfig, _climb, global_search
 from calib.refine.passes import CalibrateConfig
 from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
@@ -63,6 +64,26 @@ def test_global_search_only_raises_the_score(urban):
     assert [level["sigma_px"] for level in result.levels] == pytest.approx(
         [s * 721.5 / 721.0 for s in GlobalSearchConfig().sigmas_px]
     )
+
+
+def test_climbs_scored_together_end_where_each_alone_ends(urban):
+    """The pattern search scores the moves of all its climbs in one call; each climb must still
+    end exactly where it ends alone (its own steps, halvings and stop)."""
+    T_ref = torch.as_tensor(urban[0].calibration.T_cam_lidar)
+    config = GlobalSearchConfig(max_iterations=6)
+    score = EdgeAlignment(urban, config.contour_points, view=(T_ref.numpy(), config.view_margin_deg))
+    starts = [
+        torch.as_tensor(perturb(T_ref.numpy(), 8.0, 1.5, torch.Generator().manual_seed(s))) for s in (5, 6, 7)
+    ]
+    sigma, rotation = 4.0, 4.0 / 721.5
+    begun = [(T, float(score(T, sigma)[0])) for T in starts]
+    together = _climb(score, sigma, begun, rotation, rotation * 10, T_ref, config)
+    alone = [_climb(score, sigma, [start], rotation, rotation * 10, T_ref, config)[0] for start in begun]
+    assert len(together) == 3
+    for (T_a, best_a), (T_b, best_b), (_, best_0) in zip(together, alone, begun, strict=True):
+        assert torch.allclose(T_a, T_b, atol=1e-12) and best_a == pytest.approx(best_b, abs=1e-12)
+        assert best_a >= best_0  # a move is taken only when the score rises
+    assert any(not torch.equal(T, T_0) for (T, _), (T_0, _) in zip(together, begun, strict=True))
 
 
 def test_the_calibrator_records_both_coarse_stages(urban):

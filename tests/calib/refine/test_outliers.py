@@ -160,6 +160,34 @@ def test_a_pass_that_makes_the_residuals_worse_is_undone():
     assert calibration_error(kept.T_cam_lidar, T_lie).rotation_deg < 0.001
 
 
+def test_a_pass_too_small_to_judge_settles_its_level_without_a_check():
+    frames = [_frame(i) for i in range(3)]
+    T_init = perturb(T_TRUE, 2.0, 0.5, torch.Generator().manual_seed(3))
+    config = CalibrateConfig(passes=5, sampling={"per_frame": 500}, check_below_px=100.0)
+    # checked: the first pass lands on the truth, the second moves it by nothing (settled by
+    # min_update) once the matching after it says so: three matchings
+    matcher = ScriptedMatcher(T_TRUE)
+    checked = refine_passes(frames, T_init, matcher, UniformSupport(), config, np.random.default_rng(0))
+    assert matcher.calls == 3 * len(frames) and "settled" not in checked.passes[-1]
+    # with settle_px the second pass (well under 0.1 px) settles unchecked: two matchings
+    settling = config.model_copy(update={"settle_px": 0.1})
+    matcher = ScriptedMatcher(T_TRUE)
+    settled = refine_passes(frames, T_init, matcher, UniformSupport(), settling, np.random.default_rng(0))
+    assert matcher.calls == 2 * len(frames)
+    assert [p.get("settled", False) for p in settled.passes] == [False, True]
+    assert settled.passes[0]["update_px"] > 1.0 > 0.1 > settled.passes[1]["update_px"]
+    assert calibration_error(settled.T_cam_lidar, checked.T_cam_lidar).rotation_deg < 1e-4
+    # a step under settle_px is kept unchecked, even one a check would have undone
+    T_lie = perturb(T_init, 0.01, 0.005, torch.Generator().manual_seed(4))  # 0.04 px away
+    matcher = ScriptedMatcher(T_lie, lie_calls=len(frames))
+    kept = refine_passes(frames, T_init, matcher, UniformSupport(), settling, np.random.default_rng(0))
+    assert matcher.calls == len(frames) and kept.passes[0]["settled"]
+    assert calibration_error(kept.T_cam_lidar, T_lie).rotation_deg < 1e-4
+    matcher = ScriptedMatcher(T_lie, lie_calls=len(frames))
+    undone = refine_passes(frames, T_init, matcher, UniformSupport(), config, np.random.default_rng(0))
+    assert not undone.passes[0]["accepted"] and np.allclose(undone.T_cam_lidar, T_init)
+
+
 def test_points_near_the_lidar_are_not_used():
     frame = _frame(0)
     frame.points[:200, :3] = frame.points[:200, :3] / np.linalg.norm(
