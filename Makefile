@@ -27,6 +27,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_synth.py
 	$(PY) benchmarks/bench_matcher.py
 	$(PY) benchmarks/bench_refine.py
+	$(PY) benchmarks/bench_speed.py
 	$(PY) benchmarks/bench_predictor.py
 	$(PY) benchmarks/bench_hand_eye.py
 	$(PY) benchmarks/bench_flow_matcher.py

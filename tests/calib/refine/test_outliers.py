@@ -188,6 +188,25 @@ def test_a_pass_too_small_to_judge_settles_its_level_without_a_check():
     assert not undone.passes[0]["accepted"] and np.allclose(undone.T_cam_lidar, T_init)
 
 
+def test_no_matching_follows_a_last_pass_that_no_matching_could_check():
+    """A pass that starts beyond the matcher's reach (``check_below_px``) is not checked, so when
+    it is the last, the matching after it would change nothing and is not made."""
+    frames = [_frame(i) for i in range(3)]
+    T_init = perturb(T_TRUE, 10.0, 3.0, torch.Generator().manual_seed(5))  # tens of pixels off
+    far = CalibrateConfig(passes=1, sampling={"per_frame": 500})
+    matcher = ScriptedMatcher(T_TRUE)
+    result = refine_passes(frames, T_init, matcher, UniformSupport(), far, np.random.default_rng(0))
+    assert result.passes[0]["alignment_px"] > far.check_below_px * K[0, 0] / far.edge.working_focal_px
+    assert matcher.calls == len(frames) and "alignment_after_px" not in result.passes[0]
+    assert calibration_error(result.T_cam_lidar, T_TRUE).rotation_deg < 0.01
+    # within reach the last pass is checked, so matched after
+    near = far.model_copy(update={"check_below_px": 100.0})
+    matcher = ScriptedMatcher(T_TRUE)
+    checked = refine_passes(frames, T_init, matcher, UniformSupport(), near, np.random.default_rng(0))
+    assert matcher.calls == 2 * len(frames) and "alignment_after_px" in checked.passes[0]
+    assert np.allclose(checked.T_cam_lidar, result.T_cam_lidar)
+
+
 def test_points_near_the_lidar_are_not_used():
     frame = _frame(0)
     frame.points[:200, :3] = frame.points[:200, :3] / np.linalg.norm(
@@ -344,7 +363,7 @@ class NoisyRounds:
 def test_the_pooled_fit_averages_the_noise_of_the_last_matchings():
     """A pass's answer is its one matching's ``T_k``; the fit pooling the last three matchings lands
     on the mean of their ``T_k`` (within 0.1 cm), closer to the truth: over eight seeds the median
-    error falls by about √3 (asserted to 0.75x), without a matching more."""
+    error falls by about √3 (asserted to 0.75x), for the one matching after the last pass."""
     frames = [_frame(i) for i in range(3)]
     T_init = perturb(T_TRUE, 5.0, 0.5, torch.Generator().manual_seed(7))  # beyond pool_within
     config = CalibrateConfig(passes=4, check_passes=False, sampling={"per_frame": 500})
@@ -357,7 +376,9 @@ def test_the_pooled_fit_averages_the_noise_of_the_last_matchings():
             frames, T_init, matcher, UniformSupport(), pooled_config, np.random.default_rng(0)
         )
         assert len(mean.passes) == len(last.passes) + 1 and mean.passes[-1]["pooled_matchings"] == 3
-        assert matcher.calls == plain.calls  # no matching more
+        # one matching more: the one after the last pass, which the pooled fit reads and a plain
+        # run without checks no longer makes
+        assert matcher.calls == plain.calls + len(frames)
         single.append(calibration_error(last.T_cam_lidar, T_TRUE).translation_cm)
         pooled.append(calibration_error(mean.T_cam_lidar, T_TRUE).translation_cm)
         mean_translation = np.mean([T_k[:3, 3] for T_k in matcher.rounds[-3:]], axis=0)
