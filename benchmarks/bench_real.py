@@ -124,6 +124,10 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, a pass under 0.2 working px settles its level unchecked"
     ),  # the packaged config with settle_px 0.2
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-common": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, each pass checked on the points both matchings keep"
+    ),  # the packaged config with check_on common
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -251,6 +255,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "probe_frames": PROBE_FRAMES if "probe4" in stages else None,
                 "pool_matchings": POOLED_MATCHINGS if "pool3" in stages else 1,
                 "halvings": 2 if "h2" in stages else base.halvings,
+                "check_on": "common" if "common" in stages else base.check_on,
                 "settle_px": next(
                     (SETTLE_PX[stage] for stage in stages if stage in SETTLE_PX), base.settle_px
                 ),

@@ -13,7 +13,7 @@ from calib.errors import NumericalError
 from calib.geometry import calibration_error, perturb
 from calib.match.correspondences import Correspondences
 from calib.refine.outliers import RAYLEIGH_MEDIAN, OutlierConfig, frame_outliers, near_points, trim_points
-from calib.refine.passes import CalibrateConfig, refine_passes
+from calib.refine.passes import CalibrateConfig, _common_medians, refine_passes
 from calib.support.source import UniformSupport
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
@@ -205,6 +205,75 @@ def test_no_matching_follows_a_last_pass_that_no_matching_could_check():
     checked = refine_passes(frames, T_init, matcher, UniformSupport(), near, np.random.default_rng(0))
     assert matcher.calls == 2 * len(frames) and "alignment_after_px" in checked.passes[0]
     assert np.allclose(checked.T_cam_lidar, result.T_cam_lidar)
+
+
+class ShedsFar:
+    """Honest toward ``T_TRUE``, but what it keeps depends on the pose: more than 1 cm off it keeps
+    only the points nearer than 15 m; nearer the truth it keeps all, and those farther than 15 m
+    it matches 3 px off (far edges it confuses)."""
+
+    name = "sheds far"
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
+        self.calls += 1
+        points = frame.points[:, :3].astype(np.float64)
+        far = points[:, 0] >= 15.0
+        target = _project(points, T_TRUE)
+        if calibration_error(T_cam_lidar, T_TRUE).translation_cm > 1.0:
+            keep = ~far
+        else:
+            keep = np.ones(len(points), bool)
+            target[far, 0] += 3.0
+        index = np.flatnonzero(keep)
+        return Correspondences(
+            index,
+            points[index],
+            _project(points[index], T_cam_lidar),
+            target[index],
+            np.ones(len(index), np.float32),
+            (240, 640),
+        )
+
+
+def test_common_medians_compare_the_points_both_matchings_keep():
+    def corr(index, residual_px):
+        index = np.asarray(index)
+        uv = np.zeros((len(index), 2))
+        return Correspondences(
+            index,
+            np.ones((len(index), 3)),
+            uv,
+            uv + [[r, 0.0] for r in residual_px],
+            np.ones(len(index)),
+            (9, 9),
+        )
+
+    before = [corr([0, 1, 2, 3], [1.0, 2.0, 3.0, 4.0]), corr([5, 6], [6.0, 7.0])]
+    after = [corr([3, 1, 9], [0.5, 0.5, 0.1]), corr([6], [1.0])]  # keeps 1, 3 and 6 of before's
+    assert _common_medians(before, after) == [4.0, 0.5]  # medians of (2, 4, 7) and (0.5, 0.5, 1)
+
+
+def test_a_pass_is_checked_on_the_points_both_matchings_keep():
+    """A good pass whose matching after it keeps points the one before it had shed (and matches
+    them badly) reads as worse over all points and is undone; over the points both keep it
+    reads as better and stays (``check_on: common``)."""
+    frames = [_frame(i) for i in range(3)]
+    T_init = T_TRUE.copy()
+    T_init[0, 3] += 0.05  # 5 cm sideways
+    config = CalibrateConfig(
+        passes=1, sampling={"per_frame": 500}, halvings=0, check_below_px=100.0, halve_above=(0.0, 0.0)
+    )
+    over_all = refine_passes(frames, T_init, ShedsFar(), UniformSupport(), config, np.random.default_rng(0))
+    assert not over_all.passes[0]["accepted"] and np.allclose(over_all.T_cam_lidar, T_init)
+    assert over_all.passes[0]["alignment_after_px"] > over_all.passes[0]["alignment_px"]
+    common = config.model_copy(update={"check_on": "common"})
+    kept = refine_passes(frames, T_init, ShedsFar(), UniformSupport(), common, np.random.default_rng(0))
+    before_px, after_px = kept.passes[0]["common_px"]
+    assert kept.passes[0]["accepted"] and after_px < 0.01 < 1.0 < before_px
+    assert calibration_error(kept.T_cam_lidar, T_TRUE).translation_cm < 0.01
 
 
 def test_points_near_the_lidar_are_not_used():
