@@ -759,7 +759,7 @@ def refine_passes(
             if settles(entry, dt_before, dt):
                 entry["settled"] = True  # accepted unchecked: too small a step for a matching to judge
                 break
-        # not matched after the last pass: match now where the δt restarts compare with it
+        # not matched after the last pass: match now where the δt restarts or the pooled fit read it
         unchecked = history and history[-1]["accepted"] and "alignment_after_px" not in history[-1]
         if needs_alignment and (math.isnan(alignment) or unchecked):
             alignment = matched_under(T, dt)[1]
