@@ -128,6 +128,10 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, each pass checked on the points both matchings keep"
     ),  # the packaged config with check_on common
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-tol3": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, a pass undone only when it raises the median by more than 3 %"
+    ),  # the packaged config with check_tolerance 0.03
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -158,6 +162,8 @@ INTENSITY_WEIGHT = 0.5
 LOW_INTENSITY_WEIGHT = 0.25
 """The ``iw25`` / ``iwfine`` variants' intensity edge weight:
 everywhere, at the finest level, or (``iwfine360``) from 360 px on."""
+CHECK_TOLERANCE = 0.03
+"""The ``tol3`` variants' ``check_tolerance``: a pass is undone only when it raises the median by more."""
 SETTLE_PX = {"settle1": 0.1, "settle2": 0.2}
 """The ``settle`` variants' ``settle_px``: a pass moving the matched points less than this
 (working px) settles its level without the matching that would check it."""
@@ -256,6 +262,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "pool_matchings": POOLED_MATCHINGS if "pool3" in stages else 1,
                 "halvings": 2 if "h2" in stages else base.halvings,
                 "check_on": "common" if "common" in stages else base.check_on,
+                "check_tolerance": CHECK_TOLERANCE if "tol3" in stages else base.check_tolerance,
                 "settle_px": next(
                     (SETTLE_PX[stage] for stage in stages if stage in SETTLE_PX), base.settle_px
                 ),

@@ -160,6 +160,38 @@ def test_a_pass_that_makes_the_residuals_worse_is_undone():
     assert calibration_error(kept.T_cam_lidar, T_lie).rotation_deg < 0.001
 
 
+def test_a_pass_is_undone_only_when_it_raises_the_median_by_more_than_the_tolerance():
+    frames = [_frame(i) for i in range(3)]
+    T_init = perturb(T_TRUE, 2.0, 0.5, torch.Generator().manual_seed(3))
+    T_lie = perturb(T_init, 10.0, 2.0, torch.Generator().manual_seed(4))
+    config = CalibrateConfig(
+        passes=1, sampling={"per_frame": 500}, halvings=0, check_below_px=100.0, halve_above=(0.0, 0.0)
+    )
+    undone = refine_passes(
+        frames,
+        T_init,
+        ScriptedMatcher(T_lie, lie_calls=3),
+        UniformSupport(),
+        config,
+        np.random.default_rng(0),
+    )
+    before, after = undone.passes[0]["alignment_px"], undone.passes[0]["alignment_after_px"]
+    assert not undone.passes[0]["accepted"] and after > before
+    rise = after / before - 1
+    for tolerance, kept in ((0.9 * rise, False), (1.1 * rise, True)):
+        tolerant = config.model_copy(update={"check_tolerance": tolerance})
+        result = refine_passes(
+            frames,
+            T_init,
+            ScriptedMatcher(T_lie, lie_calls=3),
+            UniformSupport(),
+            tolerant,
+            np.random.default_rng(0),
+        )
+        assert result.passes[0]["accepted"] is kept
+        assert calibration_error(result.T_cam_lidar, T_lie if kept else T_init).rotation_deg < 0.001
+
+
 def test_a_pass_too_small_to_judge_settles_its_level_without_a_check():
     frames = [_frame(i) for i in range(3)]
     T_init = perturb(T_TRUE, 2.0, 0.5, torch.Generator().manual_seed(3))
