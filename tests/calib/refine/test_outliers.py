@@ -167,27 +167,18 @@ def test_a_pass_is_undone_only_when_it_raises_the_median_by_more_than_the_tolera
     config = CalibrateConfig(
         passes=1, sampling={"per_frame": 500}, halvings=0, check_below_px=100.0, halve_above=(0.0, 0.0)
     )
-    undone = refine_passes(
-        frames,
-        T_init,
-        ScriptedMatcher(T_lie, lie_calls=3),
-        UniformSupport(),
-        config,
-        np.random.default_rng(0),
-    )
+
+    def led_astray(tolerance: float):  # the first pass is led toward T_lie, then checked
+        tolerant = config.model_copy(update={"check_tolerance": tolerance})
+        matcher = ScriptedMatcher(T_lie, lie_calls=len(frames))
+        return refine_passes(frames, T_init, matcher, UniformSupport(), tolerant, np.random.default_rng(0))
+
+    undone = led_astray(0.0)
     before, after = undone.passes[0]["alignment_px"], undone.passes[0]["alignment_after_px"]
     assert not undone.passes[0]["accepted"] and after > before
     rise = after / before - 1
     for tolerance, kept in ((0.9 * rise, False), (1.1 * rise, True)):
-        tolerant = config.model_copy(update={"check_tolerance": tolerance})
-        result = refine_passes(
-            frames,
-            T_init,
-            ScriptedMatcher(T_lie, lie_calls=3),
-            UniformSupport(),
-            tolerant,
-            np.random.default_rng(0),
-        )
+        result = led_astray(tolerance)
         assert result.passes[0]["accepted"] is kept
         assert calibration_error(result.T_cam_lidar, T_lie if kept else T_init).rotation_deg < 0.001
 
