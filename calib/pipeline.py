@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping
 from collections.abc import Sequence as FrameList
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from functools import partial
 
@@ -34,7 +34,7 @@ from calib.moving import without_moving
 from calib.observability import weak_directions
 from calib.refine.contour_refine import contour_refine
 from calib.refine.frame_selection import contour_information, select_informative
-from calib.refine.global_search import GlobalSearchResult, global_search
+from calib.refine.global_search import global_search
 from calib.refine.passes import (
     CalibrateConfig,
     ScanTiming,
@@ -263,30 +263,6 @@ class Calibrator:
             if f < below and (not few or _from(f, self.config.few_frames_from_px))
         ]
 
-    def _coarse_starts(
-        self,
-        searches: list[tuple[str, Future[GlobalSearchResult]]],
-        starts: dict[str, np.ndarray],
-        coarse: list[dict],
-        seen: list[Frame],
-        T_init: np.ndarray,
-    ) -> None:
-        """The global searches' answers (each a start for the passes) into ``starts`` and their
-        levels into ``coarse``; then, where enabled, the contour climb from each start, which
-        replaces them (``coarse`` and ``starts`` grow in place)."""
-        for kind, search in searches:
-            result = search.result()
-            starts[f"global ({kind})"] = result.T_cam_lidar
-            coarse += [{"stage": "global", "score": kind, **level} for level in result.levels]
-        if self.config.contour.enabled:  # then the contour score over all six parameters at once
-            refined = {}
-            for origin, T_start in (starts or {"initial": T_init}).items():
-                climb = contour_refine(seen, T_start, self.config.contour)
-                coarse += [{"stage": "contour", "from": origin, **level} for level in climb.levels]
-                refined[f"{origin}, contour"] = climb.T_cam_lidar
-            starts.clear()
-            starts.update(refined)
-
     def calibrate(
         self,
         seq: Sequence | FrameList[Frame],
@@ -331,18 +307,14 @@ class Calibrator:
         coarse: list[dict] = []
         rng = np.random.default_rng(seed)
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
-        # the global search (torch, on the main core) and the learned matcher's passes (onnxruntime)
-        # both start from the initial extrinsic and share nothing, so the search runs beside them
-        beside = self.config.flow_coarse_passes > 0 and not self.config.contour.enabled
+        # the global search (torch) runs beside the learned matcher's passes (onnxruntime): both
+        # start from the initial extrinsic and share nothing
+        flow = None
         with ThreadPoolExecutor(1) as background:
             searches = [  # Stage 4, coarse: edge alignment where the matcher cannot reach
                 (kind, background.submit(global_search, seen, T_init, self.config.coarse, kind))
                 for kind in (self.config.coarse.scores if self.config.coarse.enabled else ())
             ]
-            if not beside:
-                self._coarse_starts(searches, coarse_starts, coarse, seen, T_init)
-                if searches or self.config.contour.enabled:
-                    lap("global and contour" if self.config.contour.enabled else "global")
             if self.config.flow_coarse_passes:  # the learned matcher's passes from the initial extrinsic
                 # pooled matchings (`pool_matchings`) average the finest level's noise; a coarser
                 # answer only starts the next level
@@ -353,11 +325,23 @@ class Calibrator:
                 flow = refine_passes(
                     some, T_init, self.coarse_matcher, self.support, flow_config, rng, timing=some_timing
                 )
-                if beside:  # the starts in the order they always had: the global ones first
-                    self._coarse_starts(searches, coarse_starts, coarse, seen, T_init)
-                coarse_starts["flow"] = flow.T_cam_lidar
-                coarse.append(_passes_entry("flow", flow.passes, frames=len(some)))
-                lap("global and flow, side by side" if beside and searches else "flow")
+            for kind, search in searches:  # the starts in the order they always had: the global ones first
+                result = search.result()
+                coarse_starts[f"global ({kind})"] = result.T_cam_lidar
+                coarse += [{"stage": "global", "score": kind, **level} for level in result.levels]
+        if searches or flow is not None:
+            lap("global and flow, side by side" if searches and flow else "global" if searches else "flow")
+        if self.config.contour.enabled:  # then the contour score over all six parameters at once
+            refined = {}
+            for origin, T_start in (coarse_starts or {"initial": T_init}).items():
+                climb = contour_refine(seen, T_start, self.config.contour)
+                coarse += [{"stage": "contour", "from": origin, **level} for level in climb.levels]
+                refined[f"{origin}, contour"] = climb.T_cam_lidar
+            coarse_starts = refined
+            lap("contour")
+        if flow is not None:
+            coarse_starts["flow"] = flow.T_cam_lidar
+            coarse.append(_passes_entry("flow", flow.passes, frames=len(some)))
         T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
         pyramid = self._pyramid_focals(frames)
         if pyramid and alternatives:

@@ -71,6 +71,17 @@ class GlobalSearchResult:
     levels: list[dict]
 
 
+@dataclass
+class _Climb:
+    """One pattern search's state: the pose, its score, the current steps and the moves made."""
+
+    T: torch.Tensor
+    best: float
+    rotation: float
+    translation: float
+    moves: int = 0
+
+
 def _climb(
     score: EdgeAlignment,
     sigma: float,
@@ -84,24 +95,22 @@ def _climb(
     12 neighbouring moves while that raises its score, halves its steps when none does, and stops
     at a quarter of the first step. The climbs are independent; every round scores the moves of
     all climbs still going in one call (one call of 8 x 12 poses costs about what one of 12 does)."""
-    climbs = [[T, best, rotation, translation, 0] for T, best in starts]
+    climbs = [_Climb(T, best, rotation, translation) for T, best in starts]
     smallest = rotation / 4
-    while going := [c for c in climbs if c[2] >= smallest and c[4] < config.max_iterations]:
-        candidates = []
+    while going := [c for c in climbs if c.rotation >= smallest and c.moves < config.max_iterations]:
         for climb in going:
-            climb[4] += 1
-            candidates.append(se3_exp(twist_steps(climb[2], climb[3])) @ climb[0])
-        candidates = torch.cat(candidates)
+            climb.moves += 1
+        candidates = torch.cat([se3_exp(twist_steps(c.rotation, c.translation)) @ c.T for c in going])
         values = score(candidates, sigma)
         offset = (torch.linalg.inv(T_start) @ candidates)[:, :3, 3].norm(dim=1)
         values = torch.where(offset > config.max_translation_m, -1.0, values)
         for climb, moves, scored in zip(going, candidates.split(12), values.split(12), strict=True):
             k = int(scored.argmax())
-            if float(scored[k]) > climb[1]:
-                climb[0], climb[1] = moves[k], float(scored[k])
+            if float(scored[k]) > climb.best:
+                climb.T, climb.best = moves[k], float(scored[k])
             else:
-                climb[2], climb[3] = climb[2] / 2, climb[3] / 2
-    return [(T, best) for T, best, *_ in climbs]
+                climb.rotation, climb.translation = climb.rotation / 2, climb.translation / 2
+    return [(c.T, c.best) for c in climbs]
 
 
 def _rotation_grid(cells: int, spacing: float) -> torch.Tensor:

@@ -656,7 +656,7 @@ def refine_passes(
     def settles(entry: dict, dt_before: float | None, dt: float | None) -> bool:
         """Whether a pass settles its level unchecked (``config.settle_px``)."""
         moved_s = 0.0 if dt is None or dt_before is None else abs(dt - dt_before)
-        return entry["update_px"] < config.settle_px and moved_s < SETTLE_TIME_S
+        return entry.get("update_px", math.inf) < config.settle_px and moved_s < SETTLE_TIME_S
 
     def one_pass(
         T: np.ndarray, dt: float | None, matched: list[Correspondences], alignment: float, pooled: int = 1
@@ -704,7 +704,8 @@ def refine_passes(
         if timing is not None:
             entry["time_offset_s"] = result.time_offset_s
             entry["time_offset_std_s"] = result.time_offset_std_s  # None: held (not observable)
-        entry["update_px"] = _update_px(matched, T, result.T_cam_lidar, K, working)
+        if config.settle_px > 0:
+            entry["update_px"] = _update_px(matched, T, result.T_cam_lidar, K, working)
         if config.check_on == "common":
             bases[id(entry)] = matched  # what the check compares the matching after it with
         return result, entry
