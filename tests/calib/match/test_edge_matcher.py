@@ -25,6 +25,8 @@ from calib.match.edge_matcher import (
     _ray_elevation,
     _rigid_motion,
     _seed_box,
+    _splat,
+    _sums_box,
     lidar_edges,
     lidar_field,
 )
@@ -205,6 +207,50 @@ def test_the_field_drawn_on_its_seeds_box_is_the_field_of_the_whole_image(still_
     np.testing.assert_array_equal(field, whole_field)
     np.testing.assert_array_equal(inverse_depth[rows, cols], whole_inverse_depth[rows, cols])
     assert np.abs(field[:, : rows.start]).max() == 0 and np.abs(field).max() > 0
+
+
+@pytest.mark.parametrize("inside", [False, True])
+def test_the_dense_flow_run_on_the_lidar_s_box_is_the_whole_image_s(inside, monkeypatch):
+    """The full-size level runs on the box where a window sees the LiDAR, widened by what the sums
+    read: there the signal and confidence equal the whole image's bit for bit and the flow to
+    1e-4 px (the final fit no longer reads the pixels outside, which weigh 1e-6 each); outside,
+    no signal. The field here leaves its top 70 rows and its left 50 columns empty."""
+    rng = np.random.default_rng(1)
+    image = np.stack(
+        [cv2.GaussianBlur(c, (0, 0), 1.5) for c in rng.normal(size=(2, 200, 260)).astype(np.float32)]
+    )
+    field = np.roll(np.roll(image, 3, 1), -2, 2)
+    field[:, :70], field[:, :, :50] = 0, 0
+    inverse_depth = rng.uniform(0.05, 0.5, (200, 260)).astype(np.float32)
+    matcher = EdgeMatcher(EdgeMatcherConfig(border="inside" if inside else "zero"))
+    rows, cols = _sums_box(field, matcher.config.window, matcher.config.refine_radius)
+    assert rows.start > 0 and cols.start > 0  # some of the image left out
+    flow, signal, confidence = matcher.dense_flow(field, image, inverse_depth)
+    monkeypatch.setattr(edge_matcher, "_sums_box", lambda lidar, window, radius: np.s_[:, :])
+    whole_flow, whole_signal, whole_confidence = matcher.dense_flow(field, image, inverse_depth)
+    np.testing.assert_array_equal(signal, whole_signal)
+    np.testing.assert_array_equal(confidence, whole_confidence)
+    seen = signal > 0
+    assert 0.5 < seen.mean() < 0.9 and not seen[: rows.start].any() and not seen[:, : cols.start].any()
+    np.testing.assert_allclose(flow[:, seen], whole_flow[:, seen], atol=1e-4, rtol=0)
+    np.testing.assert_allclose(
+        np.median(flow[:, seen], axis=1), [2.0, -3.0], atol=0.1
+    )  # field at y is image at y + (2, -3)
+
+
+def test_splatting_known_answers_at_and_beyond_the_border():
+    """A value at a pixel centre lands on that pixel alone; one midway between four pixels leaves a
+    quarter of itself on each (a pixel is divided by its weight only where that exceeds 1, so a
+    pixel a sample only grazes stays faint); one half a pixel past the border keeps its inside
+    half; one a pixel and more past it lands nowhere; two on one pixel centre average."""
+    values = np.array([[1.0, 2.0, 4.0, 8.0, 16.0, 32.0]], np.float32)
+    uv = np.array([[1.0, 1.0], [3.5, 2.5], [-0.5, 3.0], [-1.5, 0.0], [5.0, 5.0], [1.0, 1.0]])
+    out = _splat(values, uv, (5, 6))
+    assert out.shape == (1, 5, 6) and out.dtype == np.float32
+    assert out[0, 1, 1] == pytest.approx((1 + 32) / 2)  # two at one centre: their mean
+    np.testing.assert_allclose(out[0, 2:4, 3:5], 0.5)  # midway: a quarter of 2 on each
+    assert out[0, 3, 0] == pytest.approx(2.0)  # half a pixel out: half of 4 inside
+    assert np.count_nonzero(out) == 1 + 4 + 1  # the rest (and 8, 16 beyond the image) land nowhere
 
 
 def test_ray_elevation_known_answers_and_remembered():
