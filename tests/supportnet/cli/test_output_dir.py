@@ -285,9 +285,10 @@ def test_a_temporary_folder_of_another_machine_is_left_alone(tmp_path):
 
 def test_sigterm_during_synth_leaves_nothing(tmp_path):
     """SIGTERM unwinds the main process (its workers end quietly), and the dataset root it
-    created goes too."""
+    created goes too. Far more frames than it renders before the signal (40 once finished first
+    on a loaded machine, and exited 0)."""
     out = tmp_path / "D"
-    args = ["synth", "--world", "vineyard", "--frames", "40", "--seed", "1", "--out", out, "--small"]
+    args = ["synth", "--world", "vineyard", "--frames", "400", "--seed", "1", "--out", out, "--small"]
     proc = subprocess.Popen([SUPPORTNET, *map(str, args)], stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not any(out.glob(".synth-00.supportnet-tmp-*/sequences")):
