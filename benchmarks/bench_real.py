@@ -17,7 +17,10 @@ starts (how much of the error those lasers cause, see ``SYNTH_VARIANTS``).
 
 Each run draws a start ``T_ref · Δ`` with ``Δ`` of random axis and direction and its size uniform in
 the ball of the level (``--shell``: exactly the level's size), from a generator seeded by the crc32
-of dataset / level / run, so all variants start from the same draws. Variants, each the packaged
+of dataset / level / run, so all variants start from the same draws. ``--nudge N`` moves every start
+by a further N µm and N µ° (random directions, its own generator): a calibration's answers from two
+starts that far apart, compared run by run (``pair_runs.py``), show how far an answer moves for a
+change far too small to matter, the floor under any comparison of two variants. Variants, each the packaged
 ``calibrate.yaml`` with its stages switched as named: ``dense`` (the dense passes alone),
 ``global`` (the global coarse stage with each of its edge maps, then the dense passes, which go on
 from the start, initial or coarse, that their first pass aligns best, a coarse one only when
@@ -29,7 +32,7 @@ and its message is kept. Prints a table, one progress line per run to stderr, an
 ``benchmarks/results/bench_real.json``.
 
     .venv/bin/python benchmarks/bench_real.py [--runs 20] [--levels 2,5,10] [--only real|synthetic]
-        [--fixtures NAME,...] [--variants global,global-pyramid] [--shell]
+        [--fixtures NAME,...] [--variants global,global-pyramid] [--shell] [--nudge MICRONS]
         [--jobs N: runs side by side on a machine of many cores] [--first-run K] [--name NAME]
     .venv/bin/python benchmarks/bench_real.py --join PART,PART,... --name NAME [--merge]
 """
@@ -272,6 +275,25 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
     return {name: switched(name) for name in names}
 
 
+@dataclass(frozen=True)
+class Starts:
+    """How each run's start is drawn: exactly the level's size (``shell``) or in its ball, then moved
+    by ``nudge_um`` µm and as many µ° more (0: not)."""
+
+    shell: bool = False
+    nudge_um: float = 0.0
+
+    def draw(self, T_ref: np.ndarray, cm: float, deg: float, key: str) -> np.ndarray:
+        """The start of the run named ``key`` (dataset / level / run)."""
+        T_start = draw_start(
+            T_ref, cm, deg, torch.Generator().manual_seed(zlib.crc32(key.encode())), self.shell
+        )
+        if self.nudge_um:
+            nudge = torch.Generator().manual_seed(zlib.crc32(f"{key}/nudge".encode()))
+            T_start = perturb(T_start, 1e-4 * self.nudge_um, 1e-6 * self.nudge_um, nudge)
+        return T_start
+
+
 def draw_start(
     T_ref: np.ndarray, cm: float, deg: float, generator: torch.Generator, shell: bool
 ) -> np.ndarray:
@@ -427,14 +449,12 @@ def level_runs(levels: list[str], runs: int, first: int = 0) -> list[tuple[str, 
 
 
 def run_all(
-    dataset: Dataset, level: str, i: int, configs: dict[str, CalibrateConfig], shell: bool
+    dataset: Dataset, level: str, i: int, configs: dict[str, CalibrateConfig], starts: Starts
 ) -> dict[str, dict]:
     """Run ``i`` of ``level`` on ``dataset`` with every variant, all from the same start."""
     cm, deg = LEVELS[level]
     frames, T_ref, extra = dataset.frames(i)
-    drawn = dataset.draws_as or dataset.name
-    generator = torch.Generator().manual_seed(zlib.crc32(f"{drawn}/{level}/{i}".encode()))
-    T_start = draw_start(T_ref, cm, deg, generator, shell)
+    T_start = starts.draw(T_ref, cm, deg, f"{dataset.draws_as or dataset.name}/{level}/{i}")
     return {
         variant: {"run": i, **extra, **one_run(frames, T_start, T_ref, config, seed=i)}
         for variant, config in configs.items()
@@ -505,15 +525,15 @@ def _worker_init(selection: Selection, variants: list[str]) -> None:
     _WORKER.update(datasets={d.name: d for _, d in datasets}, configs=variant_configs(variants), work=work)
 
 
-def _run_task(index: int, name: str, level: str, run: int, shell: bool) -> tuple[int, dict[str, dict]]:
-    return index, run_all(_WORKER["datasets"][name], level, run, _WORKER["configs"], shell)
+def _run_task(index: int, name: str, level: str, run: int, starts: Starts) -> tuple[int, dict[str, dict]]:
+    return index, run_all(_WORKER["datasets"][name], level, run, _WORKER["configs"], starts)
 
 
 def run_tasks(
     datasets: dict[str, Dataset],
     tasks: list[tuple[str, str, int]],
     configs: dict[str, CalibrateConfig],
-    shell: bool,
+    starts: Starts,
     jobs: int,
     selection: Selection,
 ) -> Iterator[tuple[int, dict[str, dict]]]:
@@ -522,12 +542,12 @@ def run_tasks(
     can hang), each loading ``selection`` itself, as they finish."""
     if jobs == 1:
         for index, (name, level, i) in enumerate(tasks):
-            yield index, run_all(datasets[name], level, i, configs, shell)
+            yield index, run_all(datasets[name], level, i, configs, starts)
         return
     context = multiprocessing.get_context("spawn")
     init = (selection, list(configs))
     with ProcessPoolExecutor(jobs, mp_context=context, initializer=_worker_init, initargs=init) as pool:
-        futures = [pool.submit(_run_task, index, *task, shell) for index, task in enumerate(tasks)]
+        futures = [pool.submit(_run_task, index, *task, starts) for index, task in enumerate(tasks)]
         for future in as_completed(futures):
             yield future.result()
 
@@ -657,6 +677,13 @@ def main() -> None:
         "--shell", action="store_true", help="starts of exactly the level's size, not in its ball"
     )
     parser.add_argument(
+        "--nudge",
+        type=float,
+        default=0.0,
+        help="move every start by this many µm and µ° more (pair_runs.py against a run without it: "
+        "how far answers move for a change far too small to matter)",
+    )
+    parser.add_argument(
         "--synth-seeds",
         default=",".join(map(str, SYNTH_SEEDS)),
         help="synthetic sequences' seeds, run i uses the (i mod n)-th (a config tuned on the default "
@@ -713,6 +740,7 @@ def main() -> None:
         "configs": {v: c.model_dump(mode="json") for v, c in configs.items()},
         "runs": args.runs,
         "start_draw": "shell" if args.shell else "ball",
+        "nudge_um": args.nudge,
         "synthetic_seeds": list(synth_seeds),
         "machine": f"{platform.machine()}, {platform.python_version()}",
         # one entry per install (libraries, processor) its parts ran on
@@ -751,7 +779,9 @@ def main() -> None:
         results["jobs"] = args.jobs
         progress = {"done": 0, "total": len(tasks) * len(variants), "clock": clock}
         print(HEADER, flush=True)
-        for index, variant_runs in run_tasks(by_name, tasks, configs, args.shell, args.jobs, selection):
+        for index, variant_runs in run_tasks(
+            by_name, tasks, configs, Starts(args.shell, args.nudge), args.jobs, selection
+        ):
             name, level, i = tasks[index]
             done[name][(level, i)] = variant_runs
             for variant, run in variant_runs.items():

@@ -13,6 +13,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import bench_real  # noqa: E402
+import pair_runs  # noqa: E402
 import report  # noqa: E402
 
 from calib.geometry import calibration_error  # noqa: E402
@@ -47,6 +48,48 @@ def test_same_seed_same_start():
         bench_real.draw_start(_T(), 10.0, 2.0, torch.Generator().manual_seed(7), False) for _ in range(2)
     ]
     np.testing.assert_array_equal(*draws)
+
+
+def test_a_nudged_start_lies_its_nudge_from_the_start_it_nudges():
+    """--nudge N: the start drawn as without it, moved N µm and N µ° more; the same key, the same
+    start; no nudge, bench_real's draw itself."""
+    plain, nudged = bench_real.Starts(), bench_real.Starts(nudge_um=2.0)
+    T_plain = plain.draw(_T(), 10.0, 2.0, "kitti/2/3")
+    T_nudged = nudged.draw(_T(), 10.0, 2.0, "kitti/2/3")
+    e = calibration_error(T_nudged, T_plain)
+    assert e.translation_cm == pytest.approx(2e-4, rel=1e-3) and e.rotation_deg == pytest.approx(
+        2e-6, rel=1e-3
+    )
+    np.testing.assert_array_equal(T_nudged, nudged.draw(_T(), 10.0, 2.0, "kitti/2/3"))
+    generator = torch.Generator().manual_seed(bench_real.zlib.crc32(b"kitti/2/3"))
+    np.testing.assert_array_equal(T_plain, bench_real.draw_start(_T(), 10.0, 2.0, generator, False))
+
+
+def _file(finals: dict[int, tuple[float, float]], frames: int = 6) -> dict:
+    runs = [
+        {"run": i, "final": {"cm": cm, "deg": deg}, "seconds": 10.0 + i} for i, (cm, deg) in finals.items()
+    ]
+    return {
+        "success_cm_deg": bench_real.SUCCESS,
+        "real": {"kitti": {"frames": frames, "levels": {"2": {"packaged": {"runs": runs}}}}},
+    }
+
+
+def test_paired_runs_move_as_their_answers_do():
+    """Runs 0-3 in both files (4 only in one): run 0 the same, run 1 0.5 cm nearer, run 2 2 cm
+    farther and across the success line, run 3 0.1° apart."""
+    a = _file({0: (1.0, 0.1), 1: (1.5, 0.1), 2: (1.0, 0.1), 3: (1.0, 0.05), 4: (9.0, 1.0)})
+    b = _file({0: (1.0, 0.1), 1: (1.0, 0.1), 2: (3.0, 0.1), 3: (1.0, 0.15)})
+    row = pair_runs.pair(a, b)["kitti/2/packaged"]
+    assert row["runs"] == 4 and row["same"] == 1 and row["b_nearer_cm"] == 1
+    assert row["moved_cm"]["max"] == pytest.approx(2.0) and row["moved_cm"]["median"] == pytest.approx(0.25)
+    assert row["moved_deg"]["max"] == pytest.approx(0.1)
+    assert row["success"] == {"a": 4, "b": 3}
+    assert row["seconds_median"] == {"a": 11.5, "b": 11.5}
+    single = pair_runs.pair(_file({0: (4.0, 0.4)}, frames=1), _file({0: (6.0, 0.4)}, frames=1))
+    assert single["kitti/2/packaged"]["success"] == {"a": 1, "b": 0}  # one frame: within 5 cm / 0.5°
+    assert pair_runs.pair(a, _file({7: (1.0, 0.1)})) == {}  # no run in common
+    assert pair_runs.table(pair_runs.pair(a, b))[2].startswith("| kitti/2/packaged | 4 | 0.25 / ")
 
 
 def _run(cm, deg, raised=None):
@@ -144,7 +187,7 @@ def test_rows_gather_each_level_and_variant_in_run_order(monkeypatch):
     dataset = bench_real.Dataset("fake", lambda run: ([], _T(), {"seed": run % 2}), 3)
     levels, configs = ["2", "10"], {"dense": None, "global": None}
     tasks = [("fake", level, i) for level, i in bench_real.level_runs(levels, 4)]
-    finished = list(bench_real.run_tasks({"fake": dataset}, tasks, configs, False, 1, None))
+    finished = list(bench_real.run_tasks({"fake": dataset}, tasks, configs, bench_real.Starts(), 1, None))
     done = {tasks[index][1:]: runs for index, runs in reversed(finished)}  # as if they finished out of order
     row = bench_real.dataset_row(dataset, levels, done, "here")
     assert list(row["levels"]) == levels
@@ -267,7 +310,9 @@ def test_the_ideal_lidar_world_starts_from_the_draws_of_the_world_it_changes(mon
     datasets = {d.name: d for d in bench_real.synthetic_datasets((5,))}  # lazy: nothing is rendered
     for name in ("synth-urban-offset0", "synth-urban-ideal-lidar", "synth-urban-offset"):
         dataset = bench_real.Dataset(name, lambda run: ([], _T(), {}), 10, datasets[name].draws_as)
-        starts[name] = bench_real.run_all(dataset, "10", 3, {"packaged": None}, False)["packaged"]["T"]
+        starts[name] = bench_real.run_all(dataset, "10", 3, {"packaged": None}, bench_real.Starts())[
+            "packaged"
+        ]["T"]
     np.testing.assert_array_equal(starts["synth-urban-offset0"], starts["synth-urban-ideal-lidar"])
     assert not np.array_equal(starts["synth-urban-offset0"], starts["synth-urban-offset"])
     assert datasets["synth-vineyard-ideal-lidar"].draws_as == "synth-vineyard-offset0"
