@@ -11,7 +11,7 @@ median residuals of two matchings, and a pass that leaves them nearly equal is k
 hair, after which the two calibrations take different paths. Prints a table and, with ``--json``,
 writes it there.
 
-    .venv/bin/python benchmarks/pair_runs.py A.json B.json [--variant NAME] [--json OUT.json]
+    .venv/bin/python benchmarks/pair_runs.py A.json B.json [--variant NAME | --variants A,B] [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -74,17 +74,22 @@ def compared(a: dict[int, dict], b: dict[int, dict], success: tuple[float, float
     }
 
 
-def pair(first: dict, second: dict, variant: str | None = None) -> dict[str, dict]:
-    """Every ``dataset / level / variant`` both files hold (``variant``: only that one), compared."""
+def pair(first: dict, second: dict, variant: str | None = None, other: str | None = None) -> dict[str, dict]:
+    """Every ``dataset / level / variant`` both files hold (``variant``: only that one), compared;
+    with ``other`` too, ``variant`` of the first file against ``other`` of the second (two
+    variants of one run, or of two)."""
     a, b = runs_of(first), runs_of(second)
     out = {}
-    for key in sorted(set(a) & set(b)):
+    for key in sorted(a):
         if variant is not None and key[2] != variant:
+            continue
+        twin = key if other is None else (*key[:2], other)
+        if twin not in b:
             continue
         frames = (first.get("real", {}) | first.get("synthetic", {}))[key[0]]["frames"]
         success = tuple(first["success_cm_deg"]["multi" if frames > 1 else "single"])
-        if (row := compared(a[key], b[key], success)) is not None:
-            out["/".join(key)] = row
+        if (row := compared(a[key], b[twin], success)) is not None:
+            out["/".join(key) if other is None else f"{'/'.join(key)} against {other}"] = row
     return out
 
 
@@ -111,10 +116,14 @@ def main() -> None:
     parser.add_argument("first", type=Path, help="results file A (bench_real.py --name ...)")
     parser.add_argument("second", type=Path, help="results file B, the same draws")
     parser.add_argument("--variant", default=None, help="only this variant")
+    parser.add_argument(
+        "--variants", default=None, help="A,B: variant A of the first file against B of the second"
+    )
     parser.add_argument("--json", type=Path, default=None, help="also write the comparison here")
     args = parser.parse_args()
     first, second = (json.loads(p.read_text()) for p in (args.first, args.second))
-    rows = pair(first, second, args.variant)
+    variant, other = args.variants.split(",", 1) if args.variants else (args.variant, None)
+    rows = pair(first, second, variant, other)
     if not rows:
         parser.error("the two files share no dataset, level and variant with runs in common")
     print("\n".join(table(rows)))

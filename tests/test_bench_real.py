@@ -90,6 +90,14 @@ def test_paired_runs_move_as_their_answers_do():
     assert single["kitti/2/packaged"]["success"] == {"a": 1, "b": 0}  # one frame: within 5 cm / 0.5°
     assert pair_runs.pair(a, _file({7: (1.0, 0.1)})) == {}  # no run in common
     assert pair_runs.table(pair_runs.pair(a, b))[2].startswith("| kitti/2/packaged | 4 | 0.25 / ")
+    other = _file({0: (1.0, 0.1)})
+    other["real"]["kitti"]["levels"]["2"]["tol3"] = other["real"]["kitti"]["levels"]["2"].pop("packaged")
+    assert pair_runs.pair(a, other) == {}  # no variant in common
+    across = pair_runs.pair(a, other, "packaged", "tol3")  # one variant against another
+    assert (
+        list(across) == ["kitti/2/packaged against tol3"]
+        and across["kitti/2/packaged against tol3"]["same"] == 1
+    )
 
 
 def _run(cm, deg, raised=None):
