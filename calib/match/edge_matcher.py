@@ -903,7 +903,7 @@ class EdgeMatcher:
             if flow.shape[1:] != L.shape[1:]:
                 flow = _upsample_flow(flow, L.shape[1:])
             radius = cfg.search_radius if level == cfg.levels - 1 else cfg.refine_radius
-            # the full-size level runs where the LiDAR is seen alone (the coarser ones cost little)
+            # the full-size level runs only where a window sees the LiDAR (the coarser ones cost little)
             rows, cols = _sums_box(L, cfg.window, radius) if level == 0 else np.s_[:, :]
             L, warped = L[:, rows, cols], _warp(I, flow[:, rows, cols], (rows, cols))
             cost, best, top = _normalised_cost(L, warped, radius, cfg.window, cfg.border == "inside")
