@@ -672,9 +672,9 @@ def _sums_box(lidar: np.ndarray, window: int, radius: int) -> tuple[slice, slice
     """Rows and columns of ``lidar (C, H, W)`` the full-size level of the dense flow runs on: every
     pixel whose window holds a LiDAR edge (elsewhere the field is zero and no point gets a
     residual), and as far again as the cost's sums and its image RMS read from those, so that
-    the cost, peak and confidence there equal the whole image's. On KITTI and our worlds the
-    rows above the top ring are 26–36 % of the image, about a quarter of them inside that
-    margin."""
+    the cost, peak and confidence there equal the whole image's. It keeps 79 % of a real KITTI
+    raw frame, 76 % of a synthetic urban one and 95 % of a vineyard one (the rows above the
+    top ring go)."""
     return _seed_box(np.abs(lidar).sum(0) > 0, 2 * (window // 2) + radius)
 
 
