@@ -17,14 +17,17 @@ the packaged config (10 of the stretch's frames, by information) three ways:
 - ``true motion``: estimate with the world's own trajectory as the motion, which separates the
   odometry's error from the method's.
 
-A run succeeds when it ends within 2 cm and 0.2° (the issue's target); the table gives median
+``--set KEY=VALUE,...`` runs all of them on the packaged config with those keys changed (a
+switch measured here as ``bench_speed.py --compare`` times it). A run succeeds when it ends
+within 2 cm and 0.2° (the issue's target); the table gives median
 and 90th-percentile errors, the ``δt`` error and the share of runs within 1 ms. Prints a table
 and writes ``benchmarks/results/bench_time_offset.json``.
 
     .venv/bin/python benchmarks/bench_time_offset.py [--runs 4] [--worlds urban,vineyard]
         [--offsets-ms default|-50,-20,0,5,20,50] [--level 2]
         [--variants "off,odometry,no restarts,true motion"]
-        [--name bench_time_offset] [--first-run K --threads 1: a part of the runs, side by side]
+        [--set settle_px=0.1] [--name bench_time_offset]
+        [--first-run K --threads 1: a part of the runs, side by side]
 """
 
 from __future__ import annotations
@@ -38,12 +41,14 @@ import zlib
 import numpy as np
 import torch
 from bench_real import LEVELS, SYNTH_CAMERAS, draw_start, set_threads
+from bench_speed import parse_changes
+from pydantic import ValidationError
 from results_io import RESULTS, save_results
 from rich.console import Console
 
 from calib.geometry import calibration_error
 from calib.motion import motions_from_poses
-from calib.refine.passes import load_calibrate_config
+from calib.refine.passes import CalibrateConfig, load_calibrate_config
 from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
 from supportnet import Calibrator  # builds the packaged config's learned matcher too
@@ -71,11 +76,16 @@ def render(world: str, offset_s: float | None) -> tuple[list, np.ndarray, dict, 
     return frames, synth.T_cam_lidar, dict(enumerate(motions)), config.timing.camera_offset_s
 
 
-def one_run(frames, T_ref, truth_motions, offset_s, variant, level, run) -> dict:
+def packaged_with(changes: dict) -> CalibrateConfig:
+    """The packaged ``calibrate.yaml`` with ``changes`` (``--set``) applied and validated: a
+    misspelt key or a bad value raises ``pydantic.ValidationError``."""
+    return CalibrateConfig.model_validate({**load_calibrate_config().model_dump(), **changes})
+
+
+def one_run(frames, T_ref, truth_motions, offset_s, variant, level, run, base: CalibrateConfig) -> dict:
     cm, deg = LEVELS[level]
     generator = torch.Generator().manual_seed(zlib.crc32(f"dt/{level}/{run}".encode()))
     T_init = draw_start(T_ref, cm, deg, generator, False)
-    base = load_calibrate_config()
     timing = {"mode": "off" if variant == "off" else "estimate"}
     if variant == "no restarts":
         timing["restarts_ms"] = ()
@@ -155,6 +165,9 @@ def main() -> None:
     parser.add_argument("--offsets-ms", default="default", help="default, or comma-separated milliseconds")
     parser.add_argument("--level", default="2", choices=sorted(LEVELS))
     parser.add_argument("--variants", default=",".join(VARIANTS))
+    parser.add_argument(
+        "--set", default=None, help="KEY=VALUE,...: the packaged config with these keys changed (YAML values)"
+    )
     parser.add_argument("--name", default="bench_time_offset", help="results/NAME.json")
     parser.add_argument(
         "--first-run",
@@ -187,6 +200,11 @@ def main() -> None:
         set_threads(args.threads)
     offsets = [None] if args.offsets_ms == "default" else [float(v) / 1e3 for v in args.offsets_ms.split(",")]
     variants = args.variants.split(",")
+    changes = parse_changes(args.set)
+    try:
+        base = packaged_with(changes)
+    except ValidationError as error:
+        parser.error(f"--set: {error}")
     rows = []
     for world in args.worlds.split(","):
         for offset in offsets:
@@ -194,7 +212,7 @@ def main() -> None:
             for variant in variants:
                 runs = []
                 for run in range(args.first_run, args.first_run + args.runs):
-                    runs.append(one_run(frames, T_ref, truth, offset_s, variant, args.level, run))
+                    runs.append(one_run(frames, T_ref, truth, offset_s, variant, args.level, run, base))
                     r = runs[-1]
                     console.print(
                         f"{world} {1e3 * offset_s:g} ms {variant} run {run}: {r['translation_cm']:.2f} cm "
@@ -218,6 +236,7 @@ def main() -> None:
             "level": args.level,
             "seed": SEED,
             "first_run": args.first_run,
+            "changes": changes,
             "rows": rows,
         },
     )

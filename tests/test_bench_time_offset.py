@@ -29,3 +29,14 @@ def test_parts_join_run_by_run_and_are_summarised_again():
     assert urban["runs"] == 4 and urban["success"] == 0.5
     assert urban["cm_median"] == pytest.approx(2.25) and urban["dt_within_1ms"] == 0.75
     assert next(r for r in rows if r["world"] == "vineyard")["runs"] == 1
+
+
+def test_set_changes_the_packaged_config_and_refuses_a_misspelt_key():
+    from pydantic import ValidationError
+
+    from calib.refine.passes import load_calibrate_config
+
+    assert bench_time_offset.packaged_with({}) == load_calibrate_config()
+    assert bench_time_offset.packaged_with({"settle_px": 0.1}).settle_px == 0.1
+    with pytest.raises(ValidationError):
+        bench_time_offset.packaged_with({"settle": 0.1})
