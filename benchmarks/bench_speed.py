@@ -26,6 +26,7 @@ import numpy as np
 import torch
 import yaml
 from bench_real import KITTI_RES, SYNTH_FRAMES, draw_start
+from pydantic import ValidationError
 from results_io import cpu_description, package_versions, save_results
 
 import calib.refine.passes as passes_module
@@ -111,6 +112,12 @@ def parse_changes(text: str | None) -> dict:
     return {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in text.split(","))}
 
 
+def packaged_with(changes: dict) -> CalibrateConfig:
+    """The packaged ``calibrate.yaml`` with ``changes`` (:func:`parse_changes`) applied and
+    validated: a misspelt key or a bad value raises ``pydantic.ValidationError``."""
+    return CalibrateConfig.model_validate({**load_calibrate_config().model_dump(), **changes})
+
+
 def summary(runs: list[dict], reference_ms: float) -> dict:
     seconds = [r["seconds"] for r in runs]
     return {
@@ -133,7 +140,10 @@ def main() -> None:
     changes = parse_changes(args.compare)
     configs = {"packaged": packaged}
     if changes:
-        configs[args.compare] = CalibrateConfig.model_validate({**packaged.model_dump(), **changes})
+        try:
+            configs[args.compare] = packaged_with(changes)
+        except ValidationError as error:
+            parser.error(f"--compare: {error}")
     runs: dict[str, list[dict]] = {name: [] for name in configs}
     reference_ms = None
     for seed in (int(s) for s in args.seeds.split(",")):

@@ -41,14 +41,14 @@ import zlib
 import numpy as np
 import torch
 from bench_real import LEVELS, SYNTH_CAMERAS, draw_start, set_threads
-from bench_speed import parse_changes
+from bench_speed import packaged_with, parse_changes
 from pydantic import ValidationError
 from results_io import RESULTS, save_results
 from rich.console import Console
 
 from calib.geometry import calibration_error
 from calib.motion import motions_from_poses
-from calib.refine.passes import CalibrateConfig, load_calibrate_config
+from calib.refine.passes import CalibrateConfig
 from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
 from supportnet import Calibrator  # builds the packaged config's learned matcher too
@@ -74,12 +74,6 @@ def render(world: str, offset_s: float | None) -> tuple[list, np.ndarray, dict, 
     stamps = np.array(stretch) / config.timing.rate_hz
     motions = motions_from_poses(synth.world.drive.lidar_poses(stamps), stamps)
     return frames, synth.T_cam_lidar, dict(enumerate(motions)), config.timing.camera_offset_s
-
-
-def packaged_with(changes: dict) -> CalibrateConfig:
-    """The packaged ``calibrate.yaml`` with ``changes`` (``--set``) applied and validated: a
-    misspelt key or a bad value raises ``pydantic.ValidationError``."""
-    return CalibrateConfig.model_validate({**load_calibrate_config().model_dump(), **changes})
 
 
 def one_run(frames, T_ref, truth_motions, offset_s, variant, level, run, base: CalibrateConfig) -> dict:

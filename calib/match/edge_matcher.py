@@ -654,7 +654,8 @@ def _warp(image: np.ndarray, flow: np.ndarray, box: tuple[slice, slice] = np.s_[
     ``x`` of ``box`` (rows, columns; the whole image by default); ``flow (2, h, w)`` as
     ``(du, dv)`` over the box."""
     _, H, W = image.shape
-    v, u = np.mgrid[0:H, 0:W][(slice(None), *box)].astype(np.float32)
+    rows, cols = box
+    v, u = np.arange(H, dtype=np.float32)[rows, None], np.arange(W, dtype=np.float32)[None, cols]
     grid = np.stack([(u + flow[0]) * 2 / max(W - 1, 1) - 1, (v + flow[1]) * 2 / max(H - 1, 1) - 1], -1)
     warped = F.grid_sample(
         torch.from_numpy(image)[None], torch.from_numpy(grid)[None], align_corners=True, padding_mode="zeros"
