@@ -2,8 +2,11 @@
 under two codes, two variants or two start nudges (``bench_real.py --nudge``). Per dataset, level
 and variant present in both: how far each run's answer moved between the two (median, 90th
 percentile and largest, in cm and °), how many ended where they did (within 0.005 cm and 0.0005°,
-the printed digits), how many moved nearer the reference, and both files' success counts, medians
-and seconds over the runs they share.
+the printed digits), how many moved nearer the reference in translation and in rotation, and both
+files' success counts, medians and seconds over the runs they share. ``--plot PNG`` draws each
+pair's two answers (translation against rotation error) joined by a line, a panel per dataset,
+level and variant: where one side lies up and to the left of the other, the two trade rotation for
+translation.
 
 Two runs of one code from starts a micrometre apart (``--nudge 1``) end apart by what a comparison
 of two variants cannot resolve on that many draws: the checks that end each level compare the
@@ -11,7 +14,8 @@ median residuals of two matchings, and a pass that leaves them nearly equal is k
 hair, after which the two calibrations take different paths. Prints a table and, with ``--json``,
 writes it there.
 
-    .venv/bin/python benchmarks/pair_runs.py A.json B.json [--variant NAME | --variants A,B] [--json OUT.json]
+    .venv/bin/python benchmarks/pair_runs.py A.json B.json [--variant NAME | --variants A,B]
+        [--json OUT.json] [--plot OUT.png]
 """
 
 from __future__ import annotations
@@ -64,6 +68,7 @@ def compared(a: dict[int, dict], b: dict[int, dict], success: tuple[float, float
         },
         "same": int(np.sum((moved[:, 0] < SAME_CM) & (moved[:, 1] < SAME_DEG))),
         "b_nearer_cm": int(np.sum(final["b"][:, 0] < final["a"][:, 0] - SAME_CM)),
+        "b_nearer_deg": int(np.sum(final["b"][:, 1] < final["a"][:, 1] - SAME_DEG)),
         "success": ok,
         "cm_median": {side: float(np.median(f[:, 0])) for side, f in final.items()},
         "deg_median": {side: float(np.median(f[:, 1])) for side, f in final.items()},
@@ -71,6 +76,7 @@ def compared(a: dict[int, dict], b: dict[int, dict], success: tuple[float, float
             side: float(np.median([runs[i]["seconds"] for i in shared]))
             for side, runs in (("a", a), ("b", b))
         },
+        "finals": {"run": shared, **{side: f.tolist() for side, f in final.items()}},
     }
 
 
@@ -96,19 +102,48 @@ def pair(first: dict, second: dict, variant: str | None = None, other: str | Non
 def table(rows: dict[str, dict]) -> list[str]:
     lines = [
         "| dataset / level / variant | runs | moved cm median / p90 / max | moved ° median / p90 / max "
-        "| same | B nearer | success A / B | cm median A / B | s A / B |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| same | B nearer cm / ° | success A / B | cm median A / B | ° median A / B | s A / B |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for key, r in rows.items():
         cm, deg, ok = r["moved_cm"], r["moved_deg"], r["success"]
-        medians, seconds = r["cm_median"], r["seconds_median"]
+        medians, degrees, seconds = r["cm_median"], r["deg_median"], r["seconds_median"]
         lines.append(
             f"| {key} | {r['runs']} | {cm['median']:.2f} / {cm['p90']:.2f} / {cm['max']:.2f} "
-            f"| {deg['median']:.3f} / {deg['p90']:.3f} / {deg['max']:.3f} | {r['same']} | {r['b_nearer_cm']} "
-            f"| {ok['a']} / {ok['b']} | {medians['a']:.2f} / {medians['b']:.2f} "
+            f"| {deg['median']:.3f} / {deg['p90']:.3f} / {deg['max']:.3f} | {r['same']} "
+            f"| {r['b_nearer_cm']} / {r['b_nearer_deg']} | {ok['a']} / {ok['b']} "
+            f"| {medians['a']:.2f} / {medians['b']:.2f} | {degrees['a']:.3f} / {degrees['b']:.3f} "
             f"| {seconds['a']:.1f} / {seconds['b']:.1f} |"
         )
     return lines
+
+
+def plot(rows: dict[str, dict], path: Path, names: tuple[str, str] = ("A", "B")) -> Path:
+    """Each row's pairs of answers, translation (cm) against rotation (°), A and B joined by a
+    line, a panel per row, written to ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(rows), figsize=(5.5 * len(rows), 4.5), squeeze=False)
+    for ax, (key, r) in zip(axes[0], rows.items(), strict=True):
+        a, b = np.array(r["finals"]["a"]), np.array(r["finals"]["b"])
+        for p, q in zip(a, b, strict=True):
+            ax.plot([p[0], q[0]], [p[1], q[1]], color="0.75", lw=0.8, zorder=1)
+        ax.scatter(a[:, 0], a[:, 1], c="tab:blue", label=names[0], zorder=2)
+        ax.scatter(b[:, 0], b[:, 1], c="tab:red", marker="^", label=names[1], zorder=2)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(key, fontsize=8, wrap=True)
+        ax.set_xlabel("final translation error (cm)")
+        ax.set_ylabel("final rotation error (°)")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def main() -> None:
@@ -120,6 +155,7 @@ def main() -> None:
         "--variants", default=None, help="A,B: variant A of the first file against B of the second"
     )
     parser.add_argument("--json", type=Path, default=None, help="also write the comparison here")
+    parser.add_argument("--plot", type=Path, default=None, help="also draw the pairs here (PNG)")
     args = parser.parse_args()
     first, second = (json.loads(p.read_text()) for p in (args.first, args.second))
     variant, other = args.variants.split(",", 1) if args.variants else (args.variant, None)
@@ -132,6 +168,9 @@ def main() -> None:
             json.dumps({"a": str(args.first), "b": str(args.second), "pairs": rows}, indent=2)
         )
         print(f"wrote {args.json}")
+    if args.plot is not None:
+        names = (variant, other) if other else (args.first.stem, args.second.stem)
+        print(f"wrote {plot(rows, args.plot, names)}")
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@ benchmarks/report.py, without running a calibration."""
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -81,7 +82,8 @@ def test_paired_runs_move_as_their_answers_do():
     a = _file({0: (1.0, 0.1), 1: (1.5, 0.1), 2: (1.0, 0.1), 3: (1.0, 0.05), 4: (9.0, 1.0)})
     b = _file({0: (1.0, 0.1), 1: (1.0, 0.1), 2: (3.0, 0.1), 3: (1.0, 0.15)})
     row = pair_runs.pair(a, b)["kitti/2/packaged"]
-    assert row["runs"] == 4 and row["same"] == 1 and row["b_nearer_cm"] == 1
+    assert row["runs"] == 4 and row["same"] == 1 and row["b_nearer_cm"] == 1 and row["b_nearer_deg"] == 0
+    assert row["finals"]["run"] == [0, 1, 2, 3] and row["finals"]["b"][3] == [1.0, 0.15]
     assert row["moved_cm"]["max"] == pytest.approx(2.0) and row["moved_cm"]["median"] == pytest.approx(0.25)
     assert row["moved_deg"]["max"] == pytest.approx(0.1)
     assert row["success"] == {"a": 4, "b": 3}
@@ -90,6 +92,9 @@ def test_paired_runs_move_as_their_answers_do():
     assert single["kitti/2/packaged"]["success"] == {"a": 1, "b": 0}  # one frame: within 5 cm / 0.5°
     assert pair_runs.pair(a, _file({7: (1.0, 0.1)})) == {}  # no run in common
     assert pair_runs.table(pair_runs.pair(a, b))[2].startswith("| kitti/2/packaged | 4 | 0.25 / ")
+    assert "| 1 / 0 | 4 / 3 |" in pair_runs.table(pair_runs.pair(a, b))[2]
+    flipped = pair_runs.pair(b, a)["kitti/2/packaged"]  # A's run 3 nearer in rotation than B's
+    assert flipped["b_nearer_cm"] == 1 and flipped["b_nearer_deg"] == 1
     other = _file({0: (1.0, 0.1)})
     other["real"]["kitti"]["levels"]["2"]["tol3"] = other["real"]["kitti"]["levels"]["2"].pop("packaged")
     assert pair_runs.pair(a, other) == {}  # no variant in common
@@ -98,6 +103,20 @@ def test_paired_runs_move_as_their_answers_do():
         list(across) == ["kitti/2/packaged against tol3"]
         and across["kitti/2/packaged against tol3"]["same"] == 1
     )
+
+
+def test_pair_runs_cli_prints_the_table_and_draws_the_pairs(tmp_path, capsys, monkeypatch):
+    a = _file({0: (1.0, 0.1), 1: (1.5, 0.1), 2: (1.0, 0.1)})
+    b = _file({0: (1.0, 0.1), 1: (1.0, 0.2), 2: (3.0, 0.05)})
+    paths = [tmp_path / "a.json", tmp_path / "b.json"]
+    for path, results in zip(paths, (a, b), strict=True):
+        path.write_text(json.dumps(results))
+    png = tmp_path / "pairs.png"
+    monkeypatch.setattr(sys, "argv", ["pair_runs.py", *map(str, paths), "--plot", str(png)])
+    pair_runs.main()
+    out = capsys.readouterr().out
+    assert "| kitti/2/packaged | 3 |" in out and "| 1 / 1 |" in out and f"wrote {png}" in out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
 
 
 def _run(cm, deg, raised=None):
