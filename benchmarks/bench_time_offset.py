@@ -18,7 +18,9 @@ the packaged config (10 of the stretch's frames, by information) three ways:
   odometry's error from the method's.
 
 ``--set KEY=VALUE,...`` runs all of them on the packaged config with those keys changed (a
-switch measured here as ``bench_speed.py --compare`` times it). A run succeeds when it ends
+switch measured here as ``bench_speed.py --compare`` times it); ``--world-set GROUP.KEY=VALUE,...``
+renders the worlds with those keys changed (``lidar.laser_angle_std_deg=0``: lasers without
+their angle errors). Each run records its error per LiDAR axis as well. A run succeeds when it ends
 within 2 cm and 0.2° (the issue's target); the table gives median
 and 90th-percentile errors, the ``δt`` error and the share of runs within 1 ms. Prints a table
 and writes ``benchmarks/results/bench_time_offset.json``.
@@ -26,7 +28,7 @@ and writes ``benchmarks/results/bench_time_offset.json``.
     .venv/bin/python benchmarks/bench_time_offset.py [--runs 4] [--worlds urban,vineyard]
         [--offsets-ms default|-50,-20,0,5,20,50] [--level 2]
         [--variants "off,odometry,no restarts,true motion"]
-        [--set settle_px=0.1] [--name bench_time_offset]
+        [--set settle_px=0.1] [--world-set lidar.laser_angle_std_deg=0] [--name bench_time_offset]
         [--first-run K --threads 1: a part of the runs, side by side]
 """
 
@@ -62,9 +64,24 @@ SUCCESS = (2.0, 0.2)
 console = Console(stderr=True, highlight=False, soft_wrap=True)
 
 
-def render(world: str, offset_s: float | None) -> tuple[list, np.ndarray, dict, float]:
-    """The stretch's frames, the reference extrinsic, the true motion by position, and δt."""
-    overrides = {} if offset_s is None else {"timing": {"camera_offset_s": offset_s}}
+def world_changes(text: str | None) -> dict:
+    """``GROUP.KEY=VALUE,...`` (values read as YAML) into :func:`load_synth_config` overrides,
+    e.g. ``lidar.laser_angle_std_deg=0`` → ``{"lidar": {"laser_angle_std_deg": 0}}``."""
+    groups: dict[str, dict] = {}
+    for key, value in parse_changes(text).items():
+        group, dot, name = key.partition(".")
+        if not dot or not name:
+            raise ValueError(f"--world-set takes GROUP.KEY=VALUE, got {key!r}")
+        groups.setdefault(group, {})[name] = value
+    return groups
+
+
+def render(world: str, offset_s: float | None, changes: dict) -> tuple[list, np.ndarray, dict, float]:
+    """The stretch's frames, the reference extrinsic, the true motion by position, and δt;
+    ``changes`` (:func:`world_changes`) are merged into the world's config groups."""
+    overrides = {group: dict(keys) for group, keys in changes.items()}
+    if offset_s is not None:
+        overrides.setdefault("timing", {})["camera_offset_s"] = offset_s
     config = load_synth_config(world, camera=SYNTH_CAMERAS[world], **overrides)
     stretch = STRETCHES[world]
     synth = Synthesizer(config, stretch.stop, seed=SEED)
@@ -93,6 +110,8 @@ def one_run(frames, T_ref, truth_motions, offset_s, variant, level, run, base: C
     return {
         "translation_cm": error.translation_cm,
         "rotation_deg": error.rotation_deg,
+        "translation_xyz_cm": list(error.translation_xyz_cm),
+        "rotation_xyz_deg": list(error.rotation_xyz_deg),
         "time_offset_ms": None if dt is None else 1e3 * dt,
         "time_offset_error_ms": None if dt is None else 1e3 * (dt - offset_s),
         "time_offset_std_ms": None if result.time_offset_std_s is None else 1e3 * result.time_offset_std_s,
@@ -162,6 +181,12 @@ def main() -> None:
     parser.add_argument(
         "--set", default=None, help="KEY=VALUE,...: the packaged config with these keys changed (YAML values)"
     )
+    parser.add_argument(
+        "--world-set",
+        default=None,
+        help="GROUP.KEY=VALUE,...: the worlds' configs with these keys changed, e.g. "
+        "lidar.laser_angle_std_deg=0 (a LiDAR without per-laser angle errors)",
+    )
     parser.add_argument("--name", default="bench_time_offset", help="results/NAME.json")
     parser.add_argument(
         "--first-run",
@@ -199,10 +224,14 @@ def main() -> None:
         base = packaged_with(changes)
     except ValidationError as error:
         parser.error(f"--set: {error}")
+    try:
+        worlds_changed = world_changes(args.world_set)
+    except ValueError as error:
+        parser.error(str(error))
     rows = []
     for world in args.worlds.split(","):
         for offset in offsets:
-            frames, T_ref, truth, offset_s = render(world, offset)
+            frames, T_ref, truth, offset_s = render(world, offset, worlds_changed)
             for variant in variants:
                 runs = []
                 for run in range(args.first_run, args.first_run + args.runs):
@@ -210,7 +239,9 @@ def main() -> None:
                     r = runs[-1]
                     console.print(
                         f"{world} {1e3 * offset_s:g} ms {variant} run {run}: {r['translation_cm']:.2f} cm "
-                        f"{r['rotation_deg']:.3f}°, δt {_f(r['time_offset_ms'], '.2f')} ms "
+                        f"{r['rotation_deg']:.3f}° (LiDAR x y z "
+                        f"{' '.join(f'{v:+.2f}' for v in r['translation_xyz_cm'])} cm), "
+                        f"δt {_f(r['time_offset_ms'], '.2f')} ms "
                         f"± {_f(r['time_offset_std_ms'], '.2f')} ({r['seconds']:.0f} s) {r['note']}"
                     )
                 rows.append(
@@ -231,6 +262,7 @@ def main() -> None:
             "seed": SEED,
             "first_run": args.first_run,
             "changes": changes,
+            "world_changes": worlds_changed,
             "rows": rows,
         },
     )

@@ -40,3 +40,18 @@ def test_set_changes_the_packaged_config_and_refuses_a_misspelt_key():
     assert bench_time_offset.packaged_with({"settle_px": 0.1}).settle_px == 0.1
     with pytest.raises(ValidationError):
         bench_time_offset.packaged_with({"settle": 0.1})
+
+
+def test_world_set_nests_keys_into_config_groups_and_reaches_the_world():
+    from calib.synth.synth_config import load_synth_config
+
+    changes = bench_time_offset.world_changes("lidar.laser_angle_std_deg=0,timing.camera_offset_s=0.01")
+    assert changes == {"lidar": {"laser_angle_std_deg": 0}, "timing": {"camera_offset_s": 0.01}}
+    assert bench_time_offset.world_changes(None) == {}
+    config = load_synth_config("vineyard", **changes)
+    assert config.lidar.laser_angle_std_deg == 0 and config.timing.camera_offset_s == 0.01
+    packaged = load_synth_config("vineyard").lidar
+    assert packaged.laser_angle_std_deg > 0
+    assert config.lidar.model_copy(update={"laser_angle_std_deg": packaged.laser_angle_std_deg}) == packaged
+    with pytest.raises(ValueError, match="GROUP.KEY"):
+        bench_time_offset.world_changes("laser_angle_std_deg=0")
