@@ -112,10 +112,27 @@ def parse_changes(text: str | None) -> dict:
     return {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in text.split(","))}
 
 
+def merged(base: dict, changes: dict) -> dict:
+    """``base`` with ``changes`` merged in, a dotted key (``edge.carry``) reaching into its
+    group (the group's other keys kept); a plain key replaces the whole value."""
+    out = dict(base)
+    for key, value in changes.items():
+        group, dot, rest = key.partition(".")
+        if dot:
+            inner = out.get(group, {})
+            if not isinstance(inner, dict):
+                raise ValueError(f"{key}: {group!r} is not a group of keys")
+            out[group] = merged(inner, {rest: value})
+        else:
+            out[key] = value
+    return out
+
+
 def packaged_with(changes: dict) -> CalibrateConfig:
-    """The packaged ``calibrate.yaml`` with ``changes`` (:func:`parse_changes`) applied and
-    validated: a misspelt key or a bad value raises ``pydantic.ValidationError``."""
-    return CalibrateConfig.model_validate({**load_calibrate_config().model_dump(), **changes})
+    """The packaged ``calibrate.yaml`` with ``changes`` (:func:`parse_changes`, dotted keys into
+    their groups: :func:`merged`) applied and validated: a misspelt key or a bad value raises
+    ``pydantic.ValidationError``."""
+    return CalibrateConfig.model_validate(merged(load_calibrate_config().model_dump(), changes))
 
 
 def summary(runs: list[dict], reference_ms: float) -> dict:

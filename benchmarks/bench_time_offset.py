@@ -17,7 +17,7 @@ the packaged config (10 of the stretch's frames, by information) three ways:
 - ``true motion``: estimate with the world's own trajectory as the motion, which separates the
   odometry's error from the method's.
 
-``--set KEY=VALUE,...`` runs all of them on the packaged config with those keys changed (a
+``--set KEY=VALUE,...`` runs all of them on the packaged config with those keys changed (``edge.carry=own``: a key of a group; a
 switch measured here as ``bench_speed.py --compare`` times it); ``--world-set GROUP.KEY=VALUE,...``
 renders the worlds with those keys changed (``lidar.laser_angle_std_deg=0``: lasers without
 their angle errors). Each run records its error per LiDAR axis as well. A run succeeds when it ends
@@ -43,7 +43,7 @@ import zlib
 import numpy as np
 import torch
 from bench_real import LEVELS, SYNTH_CAMERAS, draw_start, set_threads
-from bench_speed import packaged_with, parse_changes
+from bench_speed import merged, packaged_with, parse_changes
 from pydantic import ValidationError
 from results_io import RESULTS, save_results
 from rich.console import Console
@@ -67,13 +67,10 @@ console = Console(stderr=True, highlight=False, soft_wrap=True)
 def world_changes(text: str | None) -> dict:
     """``GROUP.KEY=VALUE,...`` (values read as YAML) into :func:`load_synth_config` overrides,
     e.g. ``lidar.laser_angle_std_deg=0`` → ``{"lidar": {"laser_angle_std_deg": 0}}``."""
-    groups: dict[str, dict] = {}
-    for key, value in parse_changes(text).items():
-        group, dot, name = key.partition(".")
-        if not dot or not name:
-            raise ValueError(f"--world-set takes GROUP.KEY=VALUE, got {key!r}")
-        groups.setdefault(group, {})[name] = value
-    return groups
+    changes = parse_changes(text)
+    if plain := [key for key in changes if "." not in key.strip(".")]:
+        raise ValueError(f"--world-set takes GROUP.KEY=VALUE, got {plain[0]!r}")
+    return merged({}, changes)
 
 
 def render(world: str, offset_s: float | None, changes: dict) -> tuple[list, np.ndarray, dict, float]:

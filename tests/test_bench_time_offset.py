@@ -40,6 +40,12 @@ def test_set_changes_the_packaged_config_and_refuses_a_misspelt_key():
     assert bench_time_offset.packaged_with({"settle_px": 0.1}).settle_px == 0.1
     with pytest.raises(ValidationError):
         bench_time_offset.packaged_with({"settle": 0.1})
+    # a dotted key reaches into its group and keeps the group's other keys
+    packaged = load_calibrate_config()
+    changed = bench_time_offset.packaged_with({"edge.carry": "own"})
+    assert changed.edge == packaged.edge.model_copy(update={"carry": "own"})
+    with pytest.raises(ValidationError):
+        bench_time_offset.packaged_with({"edge.cary": "own"})
 
 
 def test_world_set_nests_keys_into_config_groups_and_reaches_the_world():
