@@ -17,13 +17,13 @@ the packaged config (10 of the stretch's frames, by information) three ways:
 - ``true motion``: estimate with the world's own trajectory as the motion, which separates the
   odometry's error from the method's.
 
-``--set KEY=VALUE,...`` runs all of them on the packaged config with those keys changed (``edge.carry=own``: a key of a group; a
-switch measured here as ``bench_speed.py --compare`` times it); ``--world-set GROUP.KEY=VALUE,...``
-renders the worlds with those keys changed (``lidar.laser_angle_std_deg=0``: lasers without
-their angle errors). Each run records its error per LiDAR axis as well. A run succeeds when it ends
-within 2 cm and 0.2° (the issue's target); the table gives median
-and 90th-percentile errors, the ``δt`` error and the share of runs within 1 ms. Prints a table
-and writes ``benchmarks/results/bench_time_offset.json``.
+``--set KEY=VALUE,...`` runs all of them on the packaged config with those keys changed
+(``edge.carry=own``: one key of a group; a switch measured here as ``bench_speed.py --compare``
+times it); ``--world-set GROUP.KEY=VALUE,...`` renders the worlds with those keys changed
+(``lidar.laser_angle_std_deg=0``: lasers without their angle errors). Each run records its
+error per LiDAR axis as well. A run succeeds when it ends within 2 cm and 0.2° (the issue's
+target); the table gives median and 90th-percentile errors, the ``δt`` error and the share of
+runs within 1 ms. Prints a table and writes ``benchmarks/results/bench_time_offset.json``.
 
     .venv/bin/python benchmarks/bench_time_offset.py [--runs 4] [--worlds urban,vineyard]
         [--offsets-ms default|-50,-20,0,5,20,50] [--level 2]
