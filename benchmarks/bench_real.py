@@ -122,7 +122,7 @@ VARIANTS = {
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-settle1": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, a pass under 0.1 working px settles its level unchecked"
-    ),  # the packaged config with settle_px 0.1
+    ),  # settle_px 0.1: the packaged config since stop 67 (before: the packaged config with it)
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-settle2": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, a pass under 0.2 working px settles its level unchecked"
