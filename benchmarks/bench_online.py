@@ -72,9 +72,9 @@ VARIANTS: dict[str, dict] = {
     "border-inside": {"edge": {"border": "inside"}},
     # each edge pixel of the LiDAR's virtual view carried at its own depth unless at a step (stop 63)
     "carry-own": {"edge": {"carry": "own"}},
-    # a pass that moves the matched points less than 0.1 working px settles its level unchecked
-    # (stop 64; packaged since stop 67, so the same as packaged unless the packaged config changes)
-    "settle": {"settle_px": 0.1},
+    # every pass checked, as packaged until stop 67 (packaged: a pass moving the matched points
+    # less than 0.1 working px settles its level unchecked, settle_px 0.1)
+    "no-settle": {"settle_px": 0.0},
 }
 """Config overrides merged over the packaged ``calibrate.yaml`` (top-level groups as dicts)."""
 

@@ -76,9 +76,7 @@ def world_changes(text: str | None) -> dict:
 def render(world: str, offset_s: float | None, changes: dict) -> tuple[list, np.ndarray, dict, float]:
     """The stretch's frames, the reference extrinsic, the true motion by position, and δt;
     ``changes`` (:func:`world_changes`) are merged into the world's config groups."""
-    overrides = {group: dict(keys) for group, keys in changes.items()}
-    if offset_s is not None:
-        overrides.setdefault("timing", {})["camera_offset_s"] = offset_s
+    overrides = changes if offset_s is None else merged(changes, {"timing.camera_offset_s": offset_s})
     config = load_synth_config(world, camera=SYNTH_CAMERAS[world], **overrides)
     stretch = STRETCHES[world]
     synth = Synthesizer(config, stretch.stop, seed=SEED)
