@@ -135,6 +135,10 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, a pass undone only when it raises the median by more than 3 %"
     ),  # the packaged config with check_tolerance 0.03
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-pcheck": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, each level below the probe's undone where the probe's scale says it lost"
+    ),  # the packaged config with probe_check
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -266,6 +270,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "halvings": 2 if "h2" in stages else base.halvings,
                 "check_on": "common" if "common" in stages else base.check_on,
                 "check_tolerance": CHECK_TOLERANCE if "tol3" in stages else base.check_tolerance,
+                "probe_check": "pcheck" in stages or base.probe_check,
                 "settle_px": next(
                     (SETTLE_PX[stage] for stage in stages if stage in SETTLE_PX), base.settle_px
                 ),
