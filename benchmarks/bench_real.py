@@ -135,10 +135,10 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, a pass undone only when it raises the median by more than 3 %"
     ),  # the packaged config with check_tolerance 0.03
-    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-pcheck": (
-        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
-        "intensity 0.25, each level below the probe's undone where the probe's scale says it lost"
-    ),  # the packaged config with probe_check
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-no90": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid (180 px on)+dense at full resolution, "
+        "360 px on: intensity 0.25"
+    ),  # the packaged config without the 90 px level
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -230,6 +230,8 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
     def switched(name: str) -> CalibrateConfig:
         stages = name.split("-")
         pyramid = PYRAMID_FOCALS_PX if "pyramid" in stages else ()
+        if "no90" in stages:
+            pyramid = tuple(f for f in pyramid if f != 90.0)
         finest = probe = few_from = timed_from = None  # the finest passes at edge's 360 px
         edge = base.edge.model_copy(update={"intensity_weight": INTENSITY_WEIGHT})
         if "fullres" in stages:
@@ -270,7 +272,6 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "halvings": 2 if "h2" in stages else base.halvings,
                 "check_on": "common" if "common" in stages else base.check_on,
                 "check_tolerance": CHECK_TOLERANCE if "tol3" in stages else base.check_tolerance,
-                "probe_check": "pcheck" in stages or base.probe_check,
                 "settle_px": next(
                     (SETTLE_PX[stage] for stage in stages if stage in SETTLE_PX), base.settle_px
                 ),

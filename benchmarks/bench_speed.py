@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import time
 import zlib
 from collections import Counter
@@ -106,10 +107,12 @@ def one_draw(frames: list, T_ref: np.ndarray, seed: int, draw: int, config: Cali
 
 
 def parse_changes(text: str | None) -> dict:
-    """``KEY=VALUE,...`` (values read as YAML) into a config update."""
+    """``KEY=VALUE,...`` (values read as YAML; a list's commas inside its brackets,
+    ``pyramid_focals_px=[180,360]``) into a config update."""
     if not text:
         return {}
-    return {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in text.split(","))}
+    items = re.split(r",(?![^\[]*\])", text)  # not at a comma inside [...]
+    return {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in items)}
 
 
 def merged(base: dict, changes: dict) -> dict:

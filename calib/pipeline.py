@@ -13,7 +13,6 @@ window on a stream and fuses the windows into a running estimate with a drift al
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Mapping
 from collections.abc import Sequence as FrameList
@@ -38,7 +37,6 @@ from calib.refine.frame_selection import contour_information, select_informative
 from calib.refine.global_search import global_search
 from calib.refine.passes import (
     CalibrateConfig,
-    PassesResult,
     ScanTiming,
     load_calibrate_config,
     point_times,
@@ -265,40 +263,6 @@ class Calibrator:
             if f < below and (not few or _from(f, self.config.few_frames_from_px))
         ]
 
-    def _lost_the_probe(
-        self,
-        probed: PassesResult,
-        probe_level: tuple[float, Matcher, CalibrateConfig, list[int]],
-        frames: list[Frame],
-        T_cam_lidar: np.ndarray,
-        timing: ScanTiming | None,
-        rng: np.random.Generator,
-    ) -> dict:
-        """Whether the pyramid's levels coarser than the probe's lost what the probe found: one
-        pass from their answer ``T_cam_lidar (4, 4)`` (``δt`` held at ``timing``'s) at the probe's
-        scale on its frames, as the probe's answer ended one, and the probe's answer aligned
-        clearly better (median residual at most ``coarse_margin`` times; each the better of
-        before and after its pass). A level's answer measured at another level's scale alone
-        would lose to that level's own answers: a scale's median residual is lowest near where
-        its own passes end (the small vineyard: 0.41 px at 180 px for a 180 px pass's answer,
-        0.88 px for the truth)."""
-        focal, matcher, config, positions = probe_level
-        some = [frames[i] for i in positions]
-        held = None if timing is None else replace(timing, estimate=False, restarts_s=()).of_frames(positions)
-        judged = refine_passes(some, T_cam_lidar, matcher, self.support, config, rng, timing=held)
-
-        def best(passes: list[dict]) -> float:
-            return min(passes[0]["alignment_px"], passes[0].get("alignment_after_px", math.inf))
-
-        probe, levels = best(probed.passes), best(judged.passes)
-        lost = probe <= self.config.coarse_margin * levels
-        return {
-            "stage": "probe check",
-            "working_focal_px": focal,
-            "alignment_px": {"probe": probe, "coarser levels": levels},
-            "kept": "probe" if lost else "coarser levels",
-        }
-
     def calibrate(
         self,
         seq: Sequence | FrameList[Frame],
@@ -378,7 +342,7 @@ class Calibrator:
         if flow is not None:
             coarse_starts["flow"] = flow.T_cam_lidar
             coarse.append(_passes_entry("flow", flow.passes, frames=len(some)))
-        T_start, alternatives, probed, probe_level = T_init, list(coarse_starts.values()), None, None
+        T_start, alternatives, probed = T_init, list(coarse_starts.values()), None
         pyramid = self._pyramid_focals(frames)
         if pyramid and alternatives:
             # the start is chosen by one pass at the finest level (or `probe_focal_px`), where a
@@ -393,23 +357,10 @@ class Calibrator:
                 some, T_start, matcher, self.support, one_pass, rng, alternatives, some_timing
             )
             T_start, alternatives = probed.T_cam_lidar, []
-            focal = probe if coarser else self._finest_focal(frames)
-            spread = select_frames(len(frames), self.config.probe_frames or len(frames))  # `some`'s
-            probe_level, at_probe = (focal, matcher, one_pass, [int(i) for i in spread]), timing
             lap("probe")
         restarted = None  # the passes that ran the δt restarts, where a pyramid level did
         timed_from = self.config.time_offset.from_px
-        # the levels coarser than the probe's, then their answer judged at the probe's scale
-        check = self.config.probe_check and probe_level is not None and pyramid[0] < probe_level[0]
-        for focal in [*pyramid, None]:  # δt held until `time_offset.from_px`; None: the finest level
-            if check and (focal is None or focal >= probe_level[0]):
-                check = False
-                coarse.append(self._lost_the_probe(probed, probe_level, frames, T_start, timing, rng))
-                if coarse[-1]["kept"] == "probe":
-                    T_start, timing, restarted = probed.T_cam_lidar, at_probe, None
-                lap("probe check")
-            if focal is None:
-                break
+        for focal in pyramid:  # the edge matcher coarse to fine, δt held until `time_offset.from_px`
             matcher, level_config = self._level(focal, _from(focal, self.config.fine_from_px))
             timed = timing is not None and _from(focal, timed_from)
             level_config = level_config.model_copy(update={"pool_matchings": 1})

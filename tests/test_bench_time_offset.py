@@ -48,6 +48,12 @@ def test_set_changes_the_packaged_config_and_refuses_a_misspelt_key():
         bench_time_offset.packaged_with({"edge.cary": "own"})
 
 
+def test_set_reads_a_list_whole_and_splits_at_the_other_commas():
+    changes = bench_time_offset.parse_changes("pyramid_focals_px=[180.0, 360],settle_px=0.1,edge.carry=own")
+    assert changes == {"pyramid_focals_px": [180.0, 360], "settle_px": 0.1, "edge.carry": "own"}
+    assert bench_time_offset.packaged_with(changes).pyramid_focals_px == (180.0, 360.0)
+
+
 def test_world_set_nests_keys_into_config_groups_and_reaches_the_world():
     from calib.synth.synth_config import load_synth_config
 

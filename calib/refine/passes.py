@@ -249,14 +249,6 @@ class CalibrateConfig(BaseModel):
         "synthetic vineyard's 12 draws from 10° / 50 cm make the same choice of start in all 12 "
         "(11 within 2 cm / 0.2° either way); ten urban frames 0.78x the time (median of 8 draws)",
     )
-    probe_check: bool = Field(
-        False,
-        description="after the pyramid's levels coarser than the probe's, match their answer on the "
-        "probe's frames at the probe's working focal length and go back to the probe's answer "
-        "where that aligns clearly better there (`coarse_margin`, `coarse_min_share`, as a start "
-        "is chosen): at 90 px the vineyard's rows alias, and a level can walk from a start 0.7 deg "
-        "off to one 8.8 deg off that it aligns better than the truth (README, stop 68)",
-    )
     fine_intensity_weight: NonNegativeFloat | None = Field(
         None,
         description="`edge.intensity_weight` of the finest level's passes (null: the same), and of "

@@ -2,7 +2,6 @@
 whose true extrinsic is known."""
 
 import json
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -241,52 +240,6 @@ def test_probe_frames_run_the_probe_on_a_subset(frames, monkeypatch):
     assert by_focal[180.0] == {picked[0], picked[-1]}  # the probe
     assert by_focal[90.0] == by_focal[360.0] == set(picked)  # the pyramid, the finest passes
     assert next(c for c in result.coarse if c["stage"] == "choice")
-
-
-def test_probe_check_undoes_a_coarser_level_that_loses_the_probes_answer(frames, monkeypatch):
-    """With ``probe_check`` the answer of the pyramid levels coarser than the probe's gets one pass
-    at the probe's scale on its frames, and the probe's answer replaces it where that aligned
-    clearly better after its own pass: a 90 px level made to end 3° / 30 cm off (the vineyard's
-    aliased rows) is undone and the calibration ends where the probe led; without the check it
-    ends off. A level made to end at the truth is kept."""
-    import calib.pipeline as pipeline
-
-    T_ref = frames[0].calibration.T_cam_lidar
-    T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(3))
-    passes = pipeline.refine_passes
-
-    def landing(T_end):
-        def level(frames_, T, matcher, support, config, rng, alternatives=(), timing=None):
-            result = passes(frames_, T, matcher, support, config, rng, alternatives, timing)
-            if config.edge.working_focal_px == 90.0:  # the coarse level ends at T_end
-                result = replace(result, T_cam_lidar=T_end)
-            return result
-
-        return level
-
-    def calibrated(check: bool):
-        config = FAST.model_copy(
-            update={
-                "pyramid_focals_px": (90.0,),
-                "probe_focal_px": 180.0,
-                "probe_check": check,
-                "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
-            }
-        )
-        return Calibrator(config=config).calibrate(frames, T_init)
-
-    monkeypatch.setattr(pipeline, "refine_passes", landing(T_ref))  # a level that finds the truth
-    kept = calibrated(True)
-    judged = next(c for c in kept.coarse if c["stage"] == "probe check")
-    assert judged["kept"] == "coarser levels" and kept.error.translation_cm < 1.5
-    monkeypatch.setattr(pipeline, "refine_passes", landing(perturb(T_ref, 30.0, 3.0, torch.Generator())))
-    unchecked, checked = calibrated(False), calibrated(True)
-    assert unchecked.error.translation_cm > 10.0  # the finest level cannot undo it
-    judged = next(c for c in checked.coarse if c["stage"] == "probe check")
-    assert judged["kept"] == "probe" and judged["working_focal_px"] == 180.0
-    assert judged["alignment_px"]["probe"] < 0.5 * judged["alignment_px"]["coarser levels"]
-    assert not any(c["stage"] == "probe check" for c in unchecked.coarse)
-    assert checked.error.translation_cm < 2.5 and checked.error.rotation_deg < 0.4
 
 
 class _Recording:
