@@ -139,6 +139,15 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid (180 px on)+dense at full resolution, "
         "360 px on: intensity 0.25"
     ),  # the packaged config without the 90 px level
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-keep8": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, a pyramid level undone where its answer keeps under 0.8 of its start's matches"
+    ),  # the packaged config with level_min_share 0.8
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-keep8-gain5": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, a pyramid level undone where its answer keeps under 0.8 of its start's matches, "
+        "a pass raising the median kept where it matches 5 % more"
+    ),  # the packaged config with level_min_share 0.8 and check_gain 0.05
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -174,6 +183,11 @@ CHECK_TOLERANCE = 0.03
 SETTLE_PX = {"settle1": 0.1, "settle2": 0.2}
 """The ``settle`` variants' ``settle_px``: a pass moving the matched points less than this
 (working px) settles its level without the matching that would check it."""
+LEVEL_MIN_SHARE = 0.8
+"""The ``keep8`` variants' ``level_min_share``: a pyramid level whose answer keeps fewer matched
+points than this share of its start's is undone."""
+CHECK_GAIN = 0.05
+"""The ``gain5`` variants' ``check_gain``: a pass raising the median is kept where it matches 5 % more."""
 POOLED_MATCHINGS = 3
 """The ``pool3`` variants' ``pool_matchings``: a last fit over the last three matchings near the answer."""
 SUPERSAMPLED = {"supersample": 4, "redraw_px": 4.0}
@@ -269,6 +283,8 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "flow_coarse_frames": FLOW_COARSE_FRAMES if "flowcoarse3" in stages else None,
                 "probe_frames": PROBE_FRAMES if "probe4" in stages else None,
                 "pool_matchings": POOLED_MATCHINGS if "pool3" in stages else 1,
+                "level_min_share": LEVEL_MIN_SHARE if "keep8" in stages else base.level_min_share,
+                "check_gain": CHECK_GAIN if "gain5" in stages else base.check_gain,
                 "halvings": 2 if "h2" in stages else base.halvings,
                 "check_on": "common" if "common" in stages else base.check_on,
                 "check_tolerance": CHECK_TOLERANCE if "tol3" in stages else base.check_tolerance,

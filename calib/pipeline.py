@@ -367,11 +367,21 @@ class Calibrator:
             level = refine_passes(
                 frames, T_start, matcher, self.support, level_config, rng, timing=timing if timed else held
             )
-            T_start = level.T_cam_lidar
-            if timed:  # the finer levels go on from its δt, without restarts
-                restarted = restarted or level
-                timing = replace(timing, offset_s=level.time_offset_s, restarts_s=())
-            coarse.append(_passes_entry("pyramid", level.passes, working_focal_px=focal))
+            # an aliased answer (the vineyard's rows at 90 px) loses matched points, the truth gains them
+            kept_from, kept = level.matched
+            undone = kept < self.config.level_min_share * kept_from
+            if not undone:
+                T_start = level.T_cam_lidar
+                if timed:  # the finer levels go on from its δt, without restarts
+                    restarted = restarted or level
+                    timing = replace(timing, offset_s=level.time_offset_s, restarts_s=())
+            coarse.append(
+                {
+                    **_passes_entry("pyramid", level.passes, working_focal_px=focal),
+                    "matched": [kept_from, kept],
+                    "undone": undone,
+                }
+            )
             lap(f"pyramid {focal:g} px")
         finest, finest_config = self._level(fine=True)
         passes = refine_passes(  # Stages 2 (matcher), 3 (support) and 4 (SGIS + Eq. 4), in passes

@@ -323,6 +323,21 @@ class CalibrateConfig(BaseModel):
         "synthetic urban (4) from 10° / 50 cm: 8 of 9 answers the same, one 1.24 -> 1.11 cm, 7 % "
         "less time",
     )
+    check_gain: NonNegativeFloat | None = Field(
+        None,
+        description="a checked pass whose median residual rose is kept all the same where the matching "
+        "after it keeps at least 1 + this times the matches of the one before (null: never). Where "
+        "height trades for pitch (the vineyard from 10° / 50 cm) the way to the truth raises the "
+        "median while it matches ever more points: README, stop 68",
+    )
+    level_min_share: float = Field(
+        0.0,
+        ge=0,
+        description="a pyramid level's answer is kept only when the matcher keeps at least this share "
+        "of the correspondences it kept under the level's start; else the level is undone and the "
+        "next goes on from its start (0: always kept). An aliased answer loses matched points: "
+        "README, stop 68",
+    )
     pool_matchings: int = Field(
         1,
         ge=1,
@@ -479,7 +494,7 @@ class PassesResult:
     """``T_cam_lidar (4, 4)`` and ``covariance (6, 6)`` (independent residuals) of the last
     accepted pass, with its ``cell_covariance`` where ``refine.covariance_cell_deg`` asks for the
     cluster-robust one (else ``None``); ``passes`` one
-    dict per pass (iterations, cost, correspondences, alignment, update, accepted);
+    dict per pass (iterations, cost, correspondences, matched, alignment, update, accepted);
     ``correspondences`` used in the last accepted pass; ``start`` which start the passes took
     (0: ``T_init``, then the alternatives) and ``probe_alignments_px`` the median residual after
     the first pass from each (empty without alternatives; None where the matcher found too few
@@ -502,6 +517,15 @@ class PassesResult:
     time_offset_restarts: list[dict] = field(default_factory=list)
     probe_correspondences: list[int] = field(default_factory=list)
     cell_covariance: np.ndarray | None = None
+
+    @property
+    def matched(self) -> tuple[int, int]:
+        """How many correspondences the matcher kept under the start the passes went on from and
+        under their answer (where no matching followed the last accepted pass, settled or begun
+        beyond the matcher's reach, the one it started from)."""
+        last = self.passes[-1]
+        answer = last.get("matched_after", last["matched"]) if last["accepted"] else last["matched"]
+        return self.passes[0]["matched"], answer
 
     @property
     def reported_covariance(self) -> np.ndarray:
@@ -698,6 +722,7 @@ def refine_passes(
             "cost": result.cost,
             "correspondences": int(keep.sum()),
             "trimmed": int((~keep).sum()),
+            "matched": sum(len(c) for c in matched),
             "frames_left_out": [int(i) for i in np.flatnonzero(dropped)],
             "alignment_px": alignment,
             "accepted": True,
@@ -738,9 +763,12 @@ def refine_passes(
             if history:  # this matching checks the last pass
                 last = history[-1]
                 last["alignment_after_px"] = alignment
+                last["matched_after"] = sum(len(c) for c in matched)
                 checked = config.check_passes and last["alignment_px"] < reach_px
                 allowed = 1.0 + config.check_tolerance
                 worse = not alignment < last["alignment_px"] * allowed
+                if config.check_gain is not None:  # more points matched: the step found structure
+                    worse = worse and not last["matched_after"] > (1.0 + config.check_gain) * last["matched"]
                 if checked and config.check_on == "common":
                     last["common_px"] = _common_medians(bases[id(last)], matched)
                     worse = not last["common_px"][1] < last["common_px"][0] * allowed

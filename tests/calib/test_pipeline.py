@@ -2,6 +2,7 @@
 whose true extrinsic is known."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ import torch
 from calib.errors import ConfigError, DataError
 from calib.geometry import calibration_error, perturb
 from calib.init.lidar_odometry import SequenceMotions
+from calib.match.correspondences import match_frames
 from calib.match.edge_matcher import EdgeMatcher
 from calib.pipeline import Calibrator, OnlineCalibrator, select_frames
 from calib.refine.passes import CalibrateConfig
@@ -240,6 +242,83 @@ def test_probe_frames_run_the_probe_on_a_subset(frames, monkeypatch):
     assert by_focal[180.0] == {picked[0], picked[-1]}  # the probe
     assert by_focal[90.0] == by_focal[360.0] == set(picked)  # the pyramid, the finest passes
     assert next(c for c in result.coarse if c["stage"] == "choice")
+
+
+def test_a_pyramid_level_whose_answer_loses_matches_is_undone(frames, monkeypatch):
+    """With ``level_min_share`` a pyramid level whose answer the matcher keeps fewer matches under
+    than that share of those under its start is undone, and the next level goes on from its start:
+    a 90 px level made to end 3° / 30 cm off (the vineyard's aliased rows), the matches under that
+    answer counted by the level's own matcher, is undone and the calibration ends near the truth;
+    without the rule it ends off. A level made to end at the truth gains matches and is kept."""
+    import calib.pipeline as pipeline
+    from calib.refine.passes import _usable
+
+    T_ref = frames[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(3))
+    passes = pipeline.refine_passes
+
+    def landing(T_end):
+        def level(frames_, T, matcher, support, config, rng, alternatives=(), timing=None):
+            result = passes(frames_, T, matcher, support, config, rng, alternatives, timing)
+            if config.edge.working_focal_px == 90.0:  # the coarse level ends at T_end, matched there
+                kept = sum(len(_usable(c, config.outliers)) for c in match_frames(matcher, frames_, T_end))
+                last = {**result.passes[-1], "accepted": True, "matched_after": kept}
+                result = replace(result, T_cam_lidar=T_end, passes=[*result.passes[:-1], last])
+            return result
+
+        return level
+
+    def calibrated(share: float):
+        config = FAST.model_copy(
+            update={
+                "pyramid_focals_px": (90.0,),
+                "level_min_share": share,
+                "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
+            }
+        )
+        result = Calibrator(config=config).calibrate(frames, T_init)
+        return result, next(c for c in result.coarse if c["stage"] == "pyramid")
+
+    monkeypatch.setattr(pipeline, "refine_passes", landing(T_ref))  # a level that finds the truth
+    kept, level = calibrated(0.8)
+    assert not level["undone"] and level["matched"][1] > level["matched"][0]
+    assert kept.error.translation_cm < 1.5
+    monkeypatch.setattr(pipeline, "refine_passes", landing(perturb(T_ref, 30.0, 3.0, torch.Generator())))
+    (kept, level), (undone, judged) = calibrated(0.0), calibrated(0.8)
+    assert kept.error.translation_cm > 10.0 and not level["undone"]  # the finest level cannot undo it
+    assert judged["undone"] and judged["matched"][1] < 0.8 * judged["matched"][0]
+    assert undone.error.translation_cm < 2.5 and undone.error.rotation_deg < 0.4
+
+
+def test_passes_count_the_matches_under_the_start_and_the_answer(frames):
+    """Each pass records how many matches the matching it started from kept and, where a matching
+    checked it, the one after it (the next pass's start); ``matched`` reads the start's and the
+    answer's, the answer being the last pass's start where that pass was undone."""
+    from calib.refine.passes import PassesResult, refine_passes
+
+    T_ref = frames[0].calibration.T_cam_lidar
+    T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(3))
+    config = FAST.model_copy(update={"passes": 3, "settle_px": 0.0})
+    result = refine_passes(
+        frames[:3], T_init, EdgeMatcher(FAST.edge), UniformSupport(), config, np.random.default_rng(0)
+    )
+    steps = result.passes
+    assert all(p["matched"] > 0 for p in steps)
+    for before, after in zip(steps, steps[1:], strict=False):  # an accepted pass's matching starts the next
+        assert before["accepted"] and before["matched_after"] == after["matched"]
+    start, answer = result.matched
+    assert start == steps[0]["matched"]
+    assert answer == (steps[-1]["matched_after"] if steps[-1]["accepted"] else steps[-1]["matched"])
+    eye = np.eye(4)
+    made = [
+        {"matched": 10, "accepted": True, "matched_after": 12},
+        {"matched": 12, "accepted": False, "matched_after": 5},
+    ]
+    assert PassesResult(eye, np.eye(6), made, 1).matched == (10, 12)  # undone: its start's matching
+    made[1] = {"matched": 12, "accepted": True, "settled": True}
+    assert PassesResult(eye, np.eye(6), made, 1).matched == (10, 12)  # settled unchecked: its start's
+    made[1] = {"matched": 12, "accepted": True, "matched_after": 20}
+    assert PassesResult(eye, np.eye(6), made, 1).matched == (10, 20)
 
 
 class _Recording:

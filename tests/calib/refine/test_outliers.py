@@ -183,6 +183,54 @@ def test_a_pass_is_undone_only_when_it_raises_the_median_by_more_than_the_tolera
         assert calibration_error(result.T_cam_lidar, T_lie if kept else T_init).rotation_deg < 0.001
 
 
+class GainingMatcher(ScriptedMatcher):
+    """A :class:`ScriptedMatcher` that keeps only the first ``first_points`` points of each frame
+    in its first ``lie_calls`` calls (led astray), and every point after them."""
+
+    def __init__(self, T_lie: np.ndarray, lie_calls: int, first_points: int) -> None:
+        super().__init__(T_lie, lie_calls=lie_calls)
+        self.first_points = first_points
+
+    def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
+        early = self.calls < self.lie_calls
+        corr = super().match(frame, T_cam_lidar)
+        n = self.first_points if early else len(corr)
+        return Correspondences(
+            corr.index[:n],
+            corr.points_lidar[:n],
+            corr.uv[:n],
+            corr.uv_matched[:n],
+            corr.confidence[:n],
+            corr.image_size,
+        )
+
+
+def test_a_pass_that_raises_the_median_but_matches_more_is_kept_with_check_gain():
+    """``check_gain``: a checked pass whose median rose is kept where the matching after it keeps
+    more than ``1 + check_gain`` times the matches of the one before (2000 -> 3000 points a frame
+    here: kept from a gain of 0.3, undone at 0.6 and without the rule)."""
+    frames = [_frame(i) for i in range(3)]
+    T_init = perturb(T_TRUE, 2.0, 0.5, torch.Generator().manual_seed(3))
+    T_lie = perturb(T_init, 10.0, 2.0, torch.Generator().manual_seed(4))
+    config = CalibrateConfig(
+        passes=1, sampling={"per_frame": 500}, halvings=0, check_below_px=100.0, halve_above=(0.0, 0.0)
+    )
+
+    def led_astray(gain: float | None):  # the first pass is led toward T_lie, then checked
+        gaining = config.model_copy(update={"check_gain": gain})
+        matcher = GainingMatcher(T_lie, lie_calls=len(frames), first_points=2000)
+        return refine_passes(frames, T_init, matcher, UniformSupport(), gaining, np.random.default_rng(0))
+
+    for gain, kept in ((None, False), (0.6, False), (0.3, True)):
+        result = led_astray(gain)
+        step = result.passes[0]
+        assert step["alignment_after_px"] > step["alignment_px"]  # the median rose
+        assert (step["matched"], step["matched_after"]) == (6000, 9000)
+        assert step["accepted"] is kept
+        assert calibration_error(result.T_cam_lidar, T_lie if kept else T_init).rotation_deg < 0.001
+        assert result.matched == (6000, 9000 if kept else 6000)
+
+
 def test_a_pass_too_small_to_judge_settles_its_level_without_a_check():
     frames = [_frame(i) for i in range(3)]
     T_init = perturb(T_TRUE, 2.0, 0.5, torch.Generator().manual_seed(3))
