@@ -522,7 +522,9 @@ class PassesResult:
     def matched(self) -> tuple[int, int]:
         """How many correspondences the matcher kept under the start the passes went on from and
         under their answer (where no matching followed the last accepted pass, settled or begun
-        beyond the matcher's reach, the one it started from)."""
+        beyond the matcher's reach, the one it started from); ``(0, 0)`` without passes."""
+        if not self.passes:
+            return 0, 0
         last = self.passes[-1]
         answer = last.get("matched_after", last["matched"]) if last["accepted"] else last["matched"]
         return self.passes[0]["matched"], answer

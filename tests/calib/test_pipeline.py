@@ -319,6 +319,7 @@ def test_passes_count_the_matches_under_the_start_and_the_answer(frames):
     assert PassesResult(eye, np.eye(6), made, 1).matched == (10, 12)  # settled unchecked: its start's
     made[1] = {"matched": 12, "accepted": True, "matched_after": 20}
     assert PassesResult(eye, np.eye(6), made, 1).matched == (10, 20)
+    assert PassesResult(eye, np.eye(6), [], 1).matched == (0, 0)  # no passes: nothing to undo
 
 
 class _Recording:
