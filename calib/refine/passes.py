@@ -330,6 +330,11 @@ class CalibrateConfig(BaseModel):
         "height trades for pitch (the vineyard from 10° / 50 cm) the way to the truth raises the "
         "median while it matches ever more points: README, stop 68",
     )
+    check_gain_below_px: PositiveFloat | None = Field(
+        None,
+        description="`check_gain` holds only for passes whose edge matcher works under this focal "
+        "length (px; the pyramid's coarse levels); null: for every pass",
+    )
     level_min_share: float = Field(
         0.0,
         ge=0,
@@ -681,6 +686,8 @@ def refine_passes(
     needs_alignment = (timing is not None and bool(timing.restarts_s)) or config.pool_matchings > 1
 
     bases: dict[int, list[Correspondences]] = {}  # check_on common: each pass's own matching
+    below = config.check_gain_below_px
+    gains = config.check_gain is not None and (below is None or config.edge.working_focal_px < below)
 
     def settles(entry: dict, dt_before: float | None, dt: float | None) -> bool:
         """Whether a pass settles its level unchecked (``config.settle_px``)."""
@@ -769,7 +776,7 @@ def refine_passes(
                 checked = config.check_passes and last["alignment_px"] < reach_px
                 allowed = 1.0 + config.check_tolerance
                 worse = not alignment < last["alignment_px"] * allowed
-                if config.check_gain is not None:  # more points matched: the step found structure
+                if gains:  # more points matched: the step found structure
                     worse = worse and not last["matched_after"] > (1.0 + config.check_gain) * last["matched"]
                 if checked and config.check_on == "common":
                     last["common_px"] = _common_medians(bases[id(last)], matched)
