@@ -148,11 +148,11 @@ VARIANTS = {
         "intensity 0.25, a pyramid level undone where its answer keeps under 0.8 of its start's matches, "
         "a pass raising the median kept where it matches 5 % more"
     ),  # the packaged config with level_min_share 0.8 and check_gain 0.05
-    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-keep8-gain5c": (
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-keep8c-gain5c": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
-        "intensity 0.25, a pyramid level undone where its answer keeps under 0.8 of its start's matches, "
-        "a pass raising the median kept where it matches 5 % more at the levels under 360 px"
-    ),  # the packaged config with level_min_share 0.8, check_gain 0.05 under 360 px
+        "intensity 0.25, under 360 px a pyramid level undone where its answer keeps under 0.8 of its "
+        "start's matches and a pass raising the median kept where it matches 5 % more"
+    ),  # the packaged config with level_min_share 0.8 and check_gain 0.05, both under 360 px
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -288,11 +288,13 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "flow_coarse_frames": FLOW_COARSE_FRAMES if "flowcoarse3" in stages else None,
                 "probe_frames": PROBE_FRAMES if "probe4" in stages else None,
                 "pool_matchings": POOLED_MATCHINGS if "pool3" in stages else 1,
-                "level_min_share": LEVEL_MIN_SHARE if "keep8" in stages else base.level_min_share,
+                "level_min_share": LEVEL_MIN_SHARE
+                if "keep8" in stages or "keep8c" in stages
+                else base.level_min_share,
                 "check_gain": CHECK_GAIN if "gain5" in stages or "gain5c" in stages else base.check_gain,
-                "check_gain_below_px": edge.working_focal_px
-                if "gain5c" in stages
-                else base.check_gain_below_px,
+                "matched_below_px": edge.working_focal_px
+                if "gain5c" in stages or "keep8c" in stages
+                else base.matched_below_px,
                 "halvings": 2 if "h2" in stages else base.halvings,
                 "check_on": "common" if "common" in stages else base.check_on,
                 "check_tolerance": CHECK_TOLERANCE if "tol3" in stages else base.check_tolerance,

@@ -39,6 +39,7 @@ from calib.refine.passes import (
     CalibrateConfig,
     ScanTiming,
     load_calibrate_config,
+    matched_rules_hold,
     point_times,
     refine_passes,
     scan_timing,
@@ -369,7 +370,7 @@ class Calibrator:
             )
             # an aliased answer (the vineyard's rows at 90 px) loses matched points, the truth gains them
             kept_from, kept = level.matched
-            undone = kept < self.config.level_min_share * kept_from
+            undone = matched_rules_hold(self.config, focal) and kept < self.config.level_min_share * kept_from
             if not undone:
                 T_start = level.T_cam_lidar
                 if timed:  # the finer levels go on from its δt, without restarts

@@ -249,7 +249,8 @@ def test_a_pyramid_level_whose_answer_loses_matches_is_undone(frames, monkeypatc
     than that share of those under its start is undone, and the next level goes on from its start:
     a 90 px level made to end 3° / 30 cm off (the vineyard's aliased rows), the matches under that
     answer counted by the level's own matcher, is undone and the calibration ends near the truth;
-    without the rule it ends off. A level made to end at the truth gains matches and is kept."""
+    without the rule it ends off. A level made to end at the truth gains matches and is kept. With
+    ``matched_below_px`` the rule holds only at the levels working under it."""
     import calib.pipeline as pipeline
     from calib.refine.passes import _usable
 
@@ -268,11 +269,12 @@ def test_a_pyramid_level_whose_answer_loses_matches_is_undone(frames, monkeypatc
 
         return level
 
-    def calibrated(share: float):
+    def calibrated(share: float, below_px: float | None = None):
         config = FAST.model_copy(
             update={
                 "pyramid_focals_px": (90.0,),
                 "level_min_share": share,
+                "matched_below_px": below_px,
                 "time_offset": FAST.time_offset.model_copy(update={"mode": "off"}),
             }
         )
@@ -288,6 +290,9 @@ def test_a_pyramid_level_whose_answer_loses_matches_is_undone(frames, monkeypatc
     assert kept.error.translation_cm > 10.0 and not level["undone"]  # the finest level cannot undo it
     assert judged["undone"] and judged["matched"][1] < 0.8 * judged["matched"][0]
     assert undone.error.translation_cm < 2.5 and undone.error.rotation_deg < 0.4
+    # matched_below_px: the rule holds only at the levels working under it
+    assert calibrated(0.8, below_px=180.0)[1]["undone"]
+    assert not calibrated(0.8, below_px=90.0)[1]["undone"]
 
 
 def test_passes_count_the_matches_under_the_start_and_the_answer(frames):

@@ -209,7 +209,7 @@ def test_a_pass_that_raises_the_median_but_matches_more_is_kept_with_check_gain(
     """``check_gain``: a checked pass whose median rose is kept where the matching after it keeps
     more than ``1 + check_gain`` times the matches of the one before (2000 -> 3000 points a frame
     here: kept from a gain of 0.3, undone at 0.6 and without the rule), and only where the matcher
-    works under ``check_gain_below_px``."""
+    works under ``matched_below_px``."""
     frames = [_frame(i) for i in range(3)]
     T_init = perturb(T_TRUE, 2.0, 0.5, torch.Generator().manual_seed(3))
     T_lie = perturb(T_init, 10.0, 2.0, torch.Generator().manual_seed(4))
@@ -218,7 +218,7 @@ def test_a_pass_that_raises_the_median_but_matches_more_is_kept_with_check_gain(
     )
 
     def led_astray(gain: float | None, below_px: float | None = None):  # led toward T_lie, then checked
-        gaining = config.model_copy(update={"check_gain": gain, "check_gain_below_px": below_px})
+        gaining = config.model_copy(update={"check_gain": gain, "matched_below_px": below_px})
         matcher = GainingMatcher(T_lie, lie_calls=len(frames), first_points=2000)
         return refine_passes(frames, T_init, matcher, UniformSupport(), gaining, np.random.default_rng(0))
 
@@ -230,7 +230,7 @@ def test_a_pass_that_raises_the_median_but_matches_more_is_kept_with_check_gain(
         assert step["accepted"] is kept
         assert calibration_error(result.T_cam_lidar, T_lie if kept else T_init).rotation_deg < 0.001
         assert result.matched == (6000, 9000 if kept else 6000)
-    # check_gain_below_px: the rule holds only where the matcher works under that focal length
+    # matched_below_px: the rule holds only where the matcher works under that focal length
     working = config.edge.working_focal_px
     assert led_astray(0.3, below_px=working + 1.0).passes[0]["accepted"]
     assert not led_astray(0.3, below_px=working).passes[0]["accepted"]
