@@ -142,17 +142,21 @@ VARIANTS = {
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-keep8": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, a pyramid level undone where its answer keeps under 0.8 of its start's matches"
-    ),  # the packaged config with level_min_share 0.8
+    ),  # the packaged config before stop 68 with level_min_share 0.8 (at every level)
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-keep8-gain5": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, a pyramid level undone where its answer keeps under 0.8 of its start's matches, "
         "a pass raising the median kept where it matches 5 % more"
-    ),  # the packaged config with level_min_share 0.8 and check_gain 0.05
+    ),  # the packaged config before stop 68 with level_min_share 0.8 and check_gain 0.05 (every level)
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-keep8c-gain5c": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, under 360 px a pyramid level undone where its answer keeps under 0.8 of its "
         "start's matches and a pass raising the median kept where it matches 5 % more"
-    ),  # the packaged config with level_min_share 0.8 and check_gain 0.05, both under 360 px
+    ),  # level_min_share 0.8 and check_gain 0.05, both under 360 px: the packaged config since stop 68
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-nomatched": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, without the matched-count rules"
+    ),  # the packaged config before stop 68: level_min_share 0, check_gain and matched_below_px null
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -240,6 +244,21 @@ class Dataset:
     paired with the world itself."""
 
 
+def matched_rules(stages: list[str], base: CalibrateConfig, coarse_below_px: float) -> dict:
+    """``level_min_share``, ``check_gain`` and ``matched_below_px`` of a variant: as the name says
+    where it names any of ``keep8``, ``keep8c``, ``gain5``, ``gain5c`` or ``nomatched`` (the
+    ``c`` ones under ``coarse_below_px``; ``nomatched``: all off, the config before stop 68), else
+    the packaged ones."""
+    named = {"keep8", "keep8c", "gain5", "gain5c", "nomatched"} & set(stages)
+    if not named:
+        return {k: getattr(base, k) for k in ("level_min_share", "check_gain", "matched_below_px")}
+    return {
+        "level_min_share": LEVEL_MIN_SHARE if named & {"keep8", "keep8c"} else 0.0,
+        "check_gain": CHECK_GAIN if named & {"gain5", "gain5c"} else None,
+        "matched_below_px": coarse_below_px if named & {"keep8c", "gain5c"} else None,
+    }
+
+
 def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
     """Each variant's config: the packaged one with the global coarse stage, the contour
     refinement, the matcher pyramid (:data:`PYRAMID_FOCALS_PX`) and the learned flow matcher
@@ -288,13 +307,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "flow_coarse_frames": FLOW_COARSE_FRAMES if "flowcoarse3" in stages else None,
                 "probe_frames": PROBE_FRAMES if "probe4" in stages else None,
                 "pool_matchings": POOLED_MATCHINGS if "pool3" in stages else 1,
-                "level_min_share": LEVEL_MIN_SHARE
-                if "keep8" in stages or "keep8c" in stages
-                else base.level_min_share,
-                "check_gain": CHECK_GAIN if "gain5" in stages or "gain5c" in stages else base.check_gain,
-                "matched_below_px": edge.working_focal_px
-                if "gain5c" in stages or "keep8c" in stages
-                else base.matched_below_px,
+                **matched_rules(stages, base, edge.working_focal_px),
                 "halvings": 2 if "h2" in stages else base.halvings,
                 "check_on": "common" if "common" in stages else base.check_on,
                 "check_tolerance": CHECK_TOLERANCE if "tol3" in stages else base.check_tolerance,
