@@ -75,6 +75,9 @@ VARIANTS: dict[str, dict] = {
     # every pass checked, as packaged until stop 67 (packaged: a pass moving the matched points
     # less than 0.1 working px settles its level unchecked, settle_px 0.1)
     "no-settle": {"settle_px": 0.0},
+    # without the matched-count rules of the pyramid's coarse levels, as packaged until stop 68
+    # (the windows match at 360 px without a pyramid: the same answers by construction)
+    "no-matched": {"level_min_share": 0.0, "check_gain": None, "matched_below_px": None},
 }
 """Config overrides merged over the packaged ``calibrate.yaml`` (top-level groups as dicts)."""
 

@@ -56,3 +56,13 @@ def test_variants_merge_into_the_packaged_config_and_validate():
     assert own.edge.carry == "own"
     assert own.edge.model_copy(update={"carry": "nearer"}) == packaged_config.edge
     assert bench_online.configured("packaged") == packaged_config
+    unmatched = bench_online.configured("no-matched")  # the matched-count rules off, the rest packaged
+    assert (unmatched.level_min_share, unmatched.check_gain, unmatched.matched_below_px) == (0.0, None, None)
+    assert (
+        unmatched.model_copy(
+            update={
+                k: getattr(packaged_config, k) for k in ("level_min_share", "check_gain", "matched_below_px")
+            }
+        )
+        == packaged_config
+    )
