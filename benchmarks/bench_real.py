@@ -153,6 +153,11 @@ VARIANTS = {
         "intensity 0.25, under 360 px a pyramid level undone where its answer keeps under 0.8 of its "
         "start's matches and a pass raising the median kept where it matches 5 % more"
     ),  # level_min_share 0.8 and check_gain 0.05, both under 360 px: the packaged config since stop 68
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-keep85c-gain5c": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, under 360 px a pyramid level undone where its answer keeps under 0.85 of its "
+        "start's matches and a pass raising the median kept where it matches 5 % more"
+    ),  # the packaged config with level_min_share 0.85
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-nomatched": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, without the matched-count rules"
@@ -195,6 +200,9 @@ SETTLE_PX = {"settle1": 0.1, "settle2": 0.2}
 LEVEL_MIN_SHARE = 0.8
 """The ``keep8`` variants' ``level_min_share``: a pyramid level whose answer keeps fewer matched
 points than this share of its start's is undone."""
+LEVEL_MIN_SHARE_HIGH = 0.85
+"""The ``keep85c`` variants' ``level_min_share`` (under 360 px): nudged vineyard draw 6's 90 px
+level keeps 0.84x its start's matches."""
 CHECK_GAIN = 0.05
 """The ``gain5`` variants' ``check_gain``: a pass raising the median is kept where it matches 5 % more."""
 POOLED_MATCHINGS = 3
@@ -246,16 +254,20 @@ class Dataset:
 
 def matched_rules(stages: list[str], base: CalibrateConfig, coarse_below_px: float) -> dict:
     """``level_min_share``, ``check_gain`` and ``matched_below_px`` of a variant: as the name says
-    where it names any of ``keep8``, ``keep8c``, ``gain5``, ``gain5c`` or ``nomatched`` (the
+    where it names any of ``keep8``, ``keep8c``, ``keep85c``, ``gain5``, ``gain5c`` or ``nomatched`` (the
     ``c`` ones under ``coarse_below_px``; ``nomatched``: all off, the config before stop 68), else
     the packaged ones."""
-    named = {"keep8", "keep8c", "gain5", "gain5c", "nomatched"} & set(stages)
+    named = {"keep8", "keep8c", "keep85c", "gain5", "gain5c", "nomatched"} & set(stages)
     if not named:
         return {k: getattr(base, k) for k in ("level_min_share", "check_gain", "matched_below_px")}
     return {
-        "level_min_share": LEVEL_MIN_SHARE if named & {"keep8", "keep8c"} else 0.0,
+        "level_min_share": LEVEL_MIN_SHARE_HIGH
+        if "keep85c" in named
+        else LEVEL_MIN_SHARE
+        if named & {"keep8", "keep8c"}
+        else 0.0,
         "check_gain": CHECK_GAIN if named & {"gain5", "gain5c"} else None,
-        "matched_below_px": coarse_below_px if named & {"keep8c", "gain5c"} else None,
+        "matched_below_px": coarse_below_px if named & {"keep8c", "keep85c", "gain5c"} else None,
     }
 
 

@@ -366,3 +366,20 @@ def test_results_name_the_numerical_libraries_they_were_measured_with():
     a["packages"], b["packages"], c["packages"] = [versions], [{**versions, "numpy": "1.0"}], [versions]
     parts = bench_real.merged(bench_real.merged(a, b), c)
     assert parts["packages"] == [versions, {**versions, "numpy": "1.0"}]  # each install once
+
+
+def test_the_matched_count_variants_name_their_rules():
+    """``keep8c-gain5c`` is the packaged config; ``nomatched`` the same with the matched-count
+    rules off (as packaged until stop 68); ``keep8`` and ``keep85c`` set only what they name."""
+    p = bench_real.PACKAGED
+    names = [p, f"{p}-keep8c-gain5c", f"{p}-nomatched", f"{p}-keep8", f"{p}-keep85c-gain5c"]
+    configs = bench_real.variant_configs(names)
+    keys = ("level_min_share", "check_gain", "matched_below_px")
+    assert configs[names[1]] == configs[p]
+    rules = {name: tuple(getattr(configs[name], k) for k in keys) for name in names[2:]}
+    assert rules == {
+        names[2]: (0.0, None, None),
+        names[3]: (0.8, None, None),
+        names[4]: (0.85, 0.05, 360.0),
+    }
+    assert configs[names[2]].model_copy(update={k: getattr(configs[p], k) for k in keys}) == configs[p]
