@@ -197,12 +197,10 @@ CHECK_TOLERANCE = 0.03
 SETTLE_PX = {"settle1": 0.1, "settle2": 0.2}
 """The ``settle`` variants' ``settle_px``: a pass moving the matched points less than this
 (working px) settles its level without the matching that would check it."""
-LEVEL_MIN_SHARE = 0.8
-"""The ``keep8`` variants' ``level_min_share``: a pyramid level whose answer keeps fewer matched
-points than this share of its start's is undone."""
-LEVEL_MIN_SHARE_HIGH = 0.85
-"""The ``keep85c`` variants' ``level_min_share`` (under 360 px): nudged vineyard draw 6's 90 px
-level keeps 0.84x its start's matches."""
+LEVEL_MIN_SHARE = {"keep8": 0.8, "keep8c": 0.8, "keep85c": 0.85}
+"""The ``keep`` variants' ``level_min_share``: a pyramid level whose answer keeps fewer matched
+points than this share of its start's is undone (``keep85c``: nudged vineyard draw 6's 90 px level
+keeps 0.84x its start's matches)."""
 CHECK_GAIN = 0.05
 """The ``gain5`` variants' ``check_gain``: a pass raising the median is kept where it matches 5 % more."""
 POOLED_MATCHINGS = 3
@@ -257,15 +255,13 @@ def matched_rules(stages: list[str], base: CalibrateConfig, coarse_below_px: flo
     where it names any of ``keep8``, ``keep8c``, ``keep85c``, ``gain5``, ``gain5c`` or ``nomatched`` (the
     ``c`` ones under ``coarse_below_px``; ``nomatched``: all off, the config before stop 68), else
     the packaged ones."""
-    named = {"keep8", "keep8c", "keep85c", "gain5", "gain5c", "nomatched"} & set(stages)
+    named = {*LEVEL_MIN_SHARE, "gain5", "gain5c", "nomatched"} & set(stages)
     if not named:
         return {k: getattr(base, k) for k in ("level_min_share", "check_gain", "matched_below_px")}
     return {
-        "level_min_share": LEVEL_MIN_SHARE_HIGH
-        if "keep85c" in named
-        else LEVEL_MIN_SHARE
-        if named & {"keep8", "keep8c"}
-        else 0.0,
+        "level_min_share": next(
+            (LEVEL_MIN_SHARE[stage] for stage in stages if stage in LEVEL_MIN_SHARE), 0.0
+        ),
         "check_gain": CHECK_GAIN if named & {"gain5", "gain5c"} else None,
         "matched_below_px": coarse_below_px if named & {"keep8c", "keep85c", "gain5c"} else None,
     }

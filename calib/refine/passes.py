@@ -590,6 +590,11 @@ def _median_norm(residual: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(residual, axis=1))) if len(residual) else float("inf")
 
 
+def _kept(matched: list[Correspondences]) -> int:
+    """How many correspondences one matching of the frames kept."""
+    return sum(len(c) for c in matched)
+
+
 def _common_medians(before: list[Correspondences], after: list[Correspondences]) -> list[float]:
     """The median residual of two matchings of the same frames, each over the points both kept."""
     kept_before, kept_after = [], []
@@ -735,7 +740,7 @@ def refine_passes(
             "cost": result.cost,
             "correspondences": int(keep.sum()),
             "trimmed": int((~keep).sum()),
-            "matched": sum(len(c) for c in matched),
+            "matched": _kept(matched),
             "frames_left_out": [int(i) for i in np.flatnonzero(dropped)],
             "alignment_px": alignment,
             "accepted": True,
@@ -776,7 +781,7 @@ def refine_passes(
             if history:  # this matching checks the last pass
                 last = history[-1]
                 last["alignment_after_px"] = alignment
-                last["matched_after"] = sum(len(c) for c in matched)
+                last["matched_after"] = _kept(matched)
                 checked = config.check_passes and last["alignment_px"] < reach_px
                 allowed = 1.0 + config.check_tolerance
                 worse = not alignment < last["alignment_px"] * allowed
@@ -838,9 +843,7 @@ def refine_passes(
         # a start matched by few points can show a low median by luck (an aliased pose, or the
         # initial extrinsic far off with a few edges lined up): every start, the initial too, must
         # keep `coarse_min_share` of the most correspondences any start's first pass leaves
-        counts = np.array(
-            [sum(len(c) for c in probe[3][0]) if probe[1] is not None else 0 for probe in probes]
-        )
+        counts = np.array([_kept(probe[3][0]) if probe[1] is not None else 0 for probe in probes])
         after = np.where(counts < config.coarse_min_share * counts.max(), math.inf, after)
         best = int(np.argmin(after[1:])) + 1
         # the initial extrinsic (the user's, or Stage 1's) is a prior: another start must end its
