@@ -162,6 +162,14 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, without the matched-count rules"
     ),  # the packaged config before stop 68: level_min_share 0, check_gain and matched_below_px null
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-cgain5": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the probe taking a start matched by 1.5x the chosen one's points at a lower median"
+    ),  # the packaged config of stop 68 with coarse_gain 0.5
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-nocgain": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the probe by its median alone"
+    ),  # the packaged config with coarse_gain null
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -203,6 +211,9 @@ points than this share of its start's is undone (``keep85c``: nudged vineyard dr
 keeps 0.84x its start's matches)."""
 CHECK_GAIN = 0.05
 """The ``gain5`` variants' ``check_gain``: a pass raising the median is kept where it matches 5 % more."""
+COARSE_GAIN = {"cgain5": 0.5, "nocgain": None}
+"""The ``cgain`` variants' ``coarse_gain``: after the probe's choice by median, a start matched by
+more than 1.5x the chosen one's points at a lower median is taken instead (``nocgain``: off)."""
 POOLED_MATCHINGS = 3
 """The ``pool3`` variants' ``pool_matchings``: a last fit over the last three matchings near the answer."""
 SUPERSAMPLED = {"supersample": 4, "redraw_px": 4.0}
@@ -319,6 +330,9 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "halvings": 2 if "h2" in stages else base.halvings,
                 "check_on": "common" if "common" in stages else base.check_on,
                 "check_tolerance": CHECK_TOLERANCE if "tol3" in stages else base.check_tolerance,
+                "coarse_gain": next(
+                    (COARSE_GAIN[stage] for stage in stages if stage in COARSE_GAIN), base.coarse_gain
+                ),
                 "settle_px": next(
                     (SETTLE_PX[stage] for stage in stages if stage in SETTLE_PX), base.settle_px
                 ),

@@ -383,3 +383,12 @@ def test_the_matched_count_variants_name_their_rules():
         names[4]: (0.85, 0.05, 360.0),
     }
     assert configs[names[2]].model_copy(update={k: getattr(configs[p], k) for k in keys}) == configs[p]
+
+
+def test_the_coarse_gain_variants_set_it_alone():
+    """``cgain5`` sets ``coarse_gain`` 0.5, ``nocgain`` turns it off; nothing else moves."""
+    p = bench_real.PACKAGED
+    configs = bench_real.variant_configs([p, f"{p}-cgain5", f"{p}-nocgain"])
+    assert configs[f"{p}-cgain5"].coarse_gain == 0.5 and configs[f"{p}-nocgain"].coarse_gain is None
+    for name in (f"{p}-cgain5", f"{p}-nocgain"):
+        assert configs[name].model_copy(update={"coarse_gain": configs[p].coarse_gain}) == configs[p]

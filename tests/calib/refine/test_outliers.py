@@ -478,6 +478,52 @@ def test_an_initial_extrinsic_matched_by_few_points_gives_way_to_a_start_matched
     assert kept.start == 0
 
 
+class FewerFarOff(ScriptedMatcher):
+    """Within 1° of ``T_TRUE`` every point matches toward it with ``near_px`` of noise; farther off
+    only 60 % of them match, toward ``T_far``, with 1.2 px (an alias: fewer edges line up)."""
+
+    def __init__(self, T_far: np.ndarray, near_px: float) -> None:
+        super().__init__(T_far)
+        self.near_px = near_px
+
+    def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
+        points = frame.points[:, :3].astype(np.float64)
+        near = calibration_error(T_cam_lidar, T_TRUE).rotation_deg < 1.0
+        keep = np.arange(len(points) if near else 3 * len(points) // 5)
+        rng = np.random.default_rng(int(frame.name[1:]))
+        noise = rng.normal(0, self.near_px if near else 1.2, (len(points), 2))[keep]
+        target = _project(points[keep], T_TRUE if near else self.T_lie) + noise
+        return Correspondences(
+            keep, points[keep], _project(points[keep], T_cam_lidar), target, np.ones(len(keep), np.float32), (240, 640)
+        )
+
+
+def test_a_start_matched_by_many_more_points_at_a_lower_median_is_taken_with_coarse_gain():
+    """``coarse_gain``: the initial extrinsic, far off, ends its first pass at 1.2 px of noise
+    matched by 1800 points a frame; a coarse answer near the truth at 0.8 px matched by 3000, not
+    clearly enough for ``coarse_margin`` (0.67x the median; nor ruled out by ``coarse_min_share``)
+    but 1.67x the points: taken from a gain of 0.5, not at 0.8 nor without the rule, nor where its
+    median is the higher (1.5 px of noise)."""
+    frames = [_frame(i) for i in range(3)]
+    T_far = perturb(T_TRUE, 30.0, 5.0, torch.Generator().manual_seed(5))
+    T_init = perturb(T_far, 2.0, 0.5, torch.Generator().manual_seed(6))
+    T_coarse = perturb(T_TRUE, 2.0, 0.3, torch.Generator().manual_seed(7))
+
+    def probe(gain: float | None, near_px: float = 0.8):
+        config = CalibrateConfig(**PROBE, coarse_gain=gain)
+        matcher = FewerFarOff(T_far, near_px)
+        return refine_passes(frames, T_init, matcher, UniformSupport(), config, np.random.default_rng(0), [T_coarse])
+
+    kept = probe(None)
+    assert kept.probe_correspondences == [5400, 9000]
+    assert 0.5 < kept.probe_alignments_px[1] / kept.probe_alignments_px[0] < 1.0  # not clearly better
+    assert kept.start == 0 and calibration_error(kept.T_cam_lidar, T_far).rotation_deg < 0.1
+    assert probe(0.8).start == 0
+    taken = probe(0.5)
+    assert taken.start == 1 and calibration_error(taken.T_cam_lidar, T_TRUE).rotation_deg < 0.1
+    assert probe(0.5, near_px=1.5).start == 0  # more points, but the higher median
+
+
 class NoisyRounds:
     """Each round of matchings (one call per frame; frames match on threads) points every frame
     toward its own ``T_k``, ``T_TRUE`` moved 1 cm in a random direction: the noise a real matching carries,
