@@ -863,7 +863,9 @@ def refine_passes(
         if config.coarse_gain is not None:
             # a start matched by clearly more points and ending better aligned: an aliased or far
             # start matches fewer (the vineyard's rows), the truth's neighbourhood gains them
-            gaining = np.flatnonzero((counts > (1 + config.coarse_gain) * counts[chosen]) & (after < after[chosen]))
+            gaining = np.flatnonzero(
+                (counts > (1 + config.coarse_gain) * counts[chosen]) & (after < after[chosen])
+            )
             chosen = int(gaining[np.argmax(counts[gaining])]) if gaining.size else chosen
         T_before, result, entry, pending = probes[chosen]
         T, history, fits = result.T_cam_lidar, [entry], [(result, entry["correspondences"])]

@@ -494,7 +494,12 @@ class FewerFarOff(ScriptedMatcher):
         noise = rng.normal(0, self.near_px if near else 1.2, (len(points), 2))[keep]
         target = _project(points[keep], T_TRUE if near else self.T_lie) + noise
         return Correspondences(
-            keep, points[keep], _project(points[keep], T_cam_lidar), target, np.ones(len(keep), np.float32), (240, 640)
+            keep,
+            points[keep],
+            _project(points[keep], T_cam_lidar),
+            target,
+            np.ones(len(keep), np.float32),
+            (240, 640),
         )
 
 
@@ -512,7 +517,9 @@ def test_a_start_matched_by_many_more_points_at_a_lower_median_is_taken_with_coa
     def probe(gain: float | None, near_px: float = 0.8):
         config = CalibrateConfig(**PROBE, coarse_gain=gain)
         matcher = FewerFarOff(T_far, near_px)
-        return refine_passes(frames, T_init, matcher, UniformSupport(), config, np.random.default_rng(0), [T_coarse])
+        return refine_passes(
+            frames, T_init, matcher, UniformSupport(), config, np.random.default_rng(0), [T_coarse]
+        )
 
     kept = probe(None)
     assert kept.probe_correspondences == [5400, 9000]
