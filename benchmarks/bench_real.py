@@ -261,6 +261,11 @@ class Dataset:
     paired with the world itself."""
 
 
+def value_named(table: dict, stages: list[str], default):
+    """The value ``table`` gives the first of ``stages`` it names (``default`` where it names none)."""
+    return next((table[stage] for stage in stages if stage in table), default)
+
+
 def matched_rules(stages: list[str], base: CalibrateConfig, coarse_below_px: float) -> dict:
     """``level_min_share``, ``check_gain`` and ``matched_below_px`` of a variant: as the name says
     where it names any of ``keep8``, ``keep8c``, ``keep85c``, ``gain5``, ``gain5c`` or ``nomatched`` (the
@@ -270,9 +275,7 @@ def matched_rules(stages: list[str], base: CalibrateConfig, coarse_below_px: flo
     if not named:
         return {k: getattr(base, k) for k in ("level_min_share", "check_gain", "matched_below_px")}
     return {
-        "level_min_share": next(
-            (LEVEL_MIN_SHARE[stage] for stage in stages if stage in LEVEL_MIN_SHARE), 0.0
-        ),
+        "level_min_share": value_named(LEVEL_MIN_SHARE, stages, 0.0),
         "check_gain": CHECK_GAIN if named & {"gain5", "gain5c"} else None,
         "matched_below_px": coarse_below_px if named & {"keep8c", "keep85c", "gain5c"} else None,
     }
@@ -330,12 +333,8 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                 "halvings": 2 if "h2" in stages else base.halvings,
                 "check_on": "common" if "common" in stages else base.check_on,
                 "check_tolerance": CHECK_TOLERANCE if "tol3" in stages else base.check_tolerance,
-                "coarse_gain": next(
-                    (COARSE_GAIN[stage] for stage in stages if stage in COARSE_GAIN), base.coarse_gain
-                ),
-                "settle_px": next(
-                    (SETTLE_PX[stage] for stage in stages if stage in SETTLE_PX), base.settle_px
-                ),
+                "coarse_gain": value_named(COARSE_GAIN, stages, base.coarse_gain),
+                "settle_px": value_named(SETTLE_PX, stages, base.settle_px),
             }
         )
 
