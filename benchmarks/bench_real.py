@@ -170,6 +170,23 @@ VARIANTS = {
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the probe by its median alone"
     ),  # the packaged config with coarse_gain null
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gdepth": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the global search's translation steps from the contours' median depth"
+    ),  # the packaged config with coarse.depth_m null
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gdepth10": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the global search's translation steps from a fixed 10 m depth"
+    ),  # the packaged config with coarse.depth_m 10
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gflow": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the global search from the flow's answer"
+    ),  # the packaged config with coarse.start flow
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gflow-gdepth": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the global search from the flow's answer, its translation steps from the "
+        "contours' median depth"
+    ),  # the packaged config with coarse.start flow and coarse.depth_m null
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -214,6 +231,9 @@ CHECK_GAIN = 0.05
 COARSE_GAIN = {"cgain5": 0.5, "nocgain": None}
 """The ``cgain`` variants' ``coarse_gain``: after the probe's choice by median, a start matched by
 more than 1.5x the chosen one's points at a lower median is taken instead (``nocgain``: off)."""
+SEARCH_DEPTH_M = {"gdepth": None, "gdepth10": 10.0}
+"""The ``gdepth`` variants' ``coarse.depth_m``: the global search's translation steps from the
+median depth of the contour points (``gdepth``) or from a fixed 10 m (``gdepth10``)."""
 POOLED_MATCHINGS = 3
 """The ``pool3`` variants' ``pool_matchings``: a last fit over the last three matchings near the answer."""
 SUPERSAMPLED = {"supersample": 4, "redraw_px": 4.0}
@@ -312,7 +332,13 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
         fine_from = edge.working_focal_px if "iwfine360" in stages else None
         return base.model_copy(
             update={
-                "coarse": base.coarse.model_copy(update={"enabled": "global" in stages}),
+                "coarse": base.coarse.model_copy(
+                    update={
+                        "enabled": "global" in stages,
+                        "depth_m": value_named(SEARCH_DEPTH_M, stages, base.coarse.depth_m),
+                        "start": "flow" if "gflow" in stages else base.coarse.start,
+                    }
+                ),
                 "contour": base.contour.model_copy(update={"enabled": "contour" in stages}),
                 "finest_focal_px": finest,
                 "pyramid_focals_px": pyramid,

@@ -37,6 +37,7 @@ from calib.refine.frame_selection import contour_information, select_informative
 from calib.refine.global_search import global_search
 from calib.refine.passes import (
     CalibrateConfig,
+    PassesResult,
     ScanTiming,
     load_calibrate_config,
     matched_rules_hold,
@@ -309,23 +310,31 @@ class Calibrator:
         rng = np.random.default_rng(seed)
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
         # the global search (torch) runs beside the learned matcher's passes (onnxruntime): both
-        # start from the initial extrinsic and share nothing
-        flow = None
+        # start from the initial extrinsic and share nothing; or (`coarse.start: flow`) after them,
+        # from their answer
+        flow, after_flow = None, self.config.coarse.start == "flow" and self.config.flow_coarse_passes > 0
+
+        def flow_passes() -> PassesResult:  # the learned matcher's passes from the initial extrinsic
+            # pooled matchings (`pool_matchings`) average the finest level's noise; a coarser
+            # answer only starts the next level
+            flow_config = self.config.model_copy(
+                update={"passes": self.config.flow_coarse_passes, "pool_matchings": 1}
+            )
+            return refine_passes(
+                some, T_init, self.coarse_matcher, self.support, flow_config, rng, timing=some_timing
+            )
+
+        some, some_timing = _spread(frames, held, self.config.flow_coarse_frames)
         with ThreadPoolExecutor(1) as background:
+            if after_flow:
+                flow = flow_passes()
+            searched_from = flow.T_cam_lidar if after_flow else T_init
             searches = [  # Stage 4, coarse: edge alignment where the matcher cannot reach
-                (kind, background.submit(global_search, seen, T_init, self.config.coarse, kind))
+                (kind, background.submit(global_search, seen, searched_from, self.config.coarse, kind))
                 for kind in (self.config.coarse.scores if self.config.coarse.enabled else ())
             ]
-            if self.config.flow_coarse_passes:  # the learned matcher's passes from the initial extrinsic
-                # pooled matchings (`pool_matchings`) average the finest level's noise; a coarser
-                # answer only starts the next level
-                flow_config = self.config.model_copy(
-                    update={"passes": self.config.flow_coarse_passes, "pool_matchings": 1}
-                )
-                some, some_timing = _spread(frames, held, self.config.flow_coarse_frames)
-                flow = refine_passes(
-                    some, T_init, self.coarse_matcher, self.support, flow_config, rng, timing=some_timing
-                )
+            if self.config.flow_coarse_passes and not after_flow:
+                flow = flow_passes()
             for kind, search in searches:  # the starts in the order they always had: the global ones first
                 result = search.result()
                 coarse_starts[f"global ({kind})"] = result.T_cam_lidar

@@ -137,6 +137,14 @@ class EdgeAlignment:
         self.surround = surround
         self._maps: dict[float, torch.Tensor] = {}
 
+    def median_depth(self, T_cam_lidar: torch.Tensor) -> float:
+        """Median depth (m) of the contour points in front of the camera under ``T_cam_lidar (4, 4)``."""
+        T = torch.as_tensor(T_cam_lidar, dtype=torch.float64)
+        z = (self.points[self.mask] @ T[:3, :3].T + T[:3, 3])[:, 2]
+        if not bool((z > 0).any()):
+            raise DataError("T_cam_lidar", "no contour point lies in front of the camera")
+        return float(z[z > 0].median())
+
     def maps(self, sigma_px: float) -> torch.Tensor:
         """``(F, 1, H, W)`` edge maps blurred by ``σ``, less their blur by ``surround · σ``,
         renormalised to a peak of 1 (of ``|·|``: both maps can be negative)."""

@@ -42,6 +42,11 @@ class GlobalSearchConfig(BaseModel):
         description="run the global coarse stage before the dense passes (they go on from its answer "
         "only when their first pass ends better aligned there than from the initial extrinsic)",
     )
+    start: Literal["initial", "flow"] = Field(
+        "initial",
+        description="where the search starts: the initial extrinsic (beside the learned matcher's "
+        "coarse passes), or those passes' answer (after them; the initial where there are none)",
+    )
     scores: tuple[Literal[SCORE_KINDS], ...] = Field(  # type: ignore[valid-type]
         SCORE_KINDS, min_length=1, description="edge maps searched, each giving the dense passes a start"
     )
@@ -51,7 +56,11 @@ class GlobalSearchConfig(BaseModel):
     grid: int = Field(13, ge=1, le=21, description="rotations per axis of the coarsest level's grid")
     grid_spacing: float = Field(2.0, gt=0, description="grid spacing in steps of the coarsest scale")
     starts: int = Field(8, ge=1, description="best grid cells climbed and carried through every scale")
-    depth_m: float = Field(10.0, gt=0, description="typical depth: translation step = rotation step x this")
+    depth_m: PositiveFloat | None = Field(
+        10.0,
+        description="typical depth: translation step = rotation step x this (None: the median depth of "
+        "the contour points under the start, so a translation step moves them as far as a rotation step)",
+    )
     max_translation_m: float = Field(1.0, gt=0, description="translation never leaves the start by more")
     contour_points: int = Field(1200, ge=10, description="contour points per frame")
     view_margin_deg: float = Field(
@@ -136,12 +145,13 @@ def global_search(
     )
     focal = float(frames[0].K[0, 0])
     T_start = torch.as_tensor(np.asarray(T_init, np.float64))
+    depth_m = config.depth_m if config.depth_m is not None else score.median_depth(T_start)
     hypotheses: list[tuple[torch.Tensor, float]] = []
     levels = []
     for level, sigma_ref in enumerate(config.sigmas_px):
         sigma = sigma_ref * focal / REFERENCE_FOCAL_PX
         rotation = sigma / focal  # one σ of image motion, radians
-        translation = rotation * config.depth_m
+        translation = rotation * depth_m
         if level == 0:  # a grid of rotations around the start, its best cells the hypotheses
             cells = se3_exp(_rotation_grid(config.grid, config.grid_spacing * rotation)) @ T_start
             hypotheses = [

@@ -372,6 +372,45 @@ def test_flow_coarse_passes_add_a_start_from_the_coarse_matcher(frames):
     assert result.to_dict()["stage_seconds"] == result.stage_seconds
 
 
+@pytest.mark.parametrize("start", ["initial", "flow"])
+def test_the_global_search_starts_where_coarse_start_says(frames, monkeypatch, start):
+    """``coarse.start``: the global search climbs from the initial extrinsic, or from the answer
+    of the coarse matcher's passes (then run first), which stays a start of its own."""
+    import calib.pipeline
+
+    searched_from, answers = [], []
+    search, passes = calib.pipeline.global_search, calib.pipeline.refine_passes
+
+    def recorded_search(frames_, T_start, config, kind):
+        searched_from.append(np.array(T_start))
+        return search(frames_, T_start, config, kind)
+
+    def recorded_passes(*args, **kwargs):
+        result = passes(*args, **kwargs)
+        answers.append(result.T_cam_lidar)
+        return result
+
+    monkeypatch.setattr(calib.pipeline, "global_search", recorded_search)
+    monkeypatch.setattr(calib.pipeline, "refine_passes", recorded_passes)
+    config = FAST.model_copy(
+        update={
+            "flow_coarse_passes": 1,
+            "pyramid_focals_px": (),
+            "coarse": FAST.coarse.model_copy(update={"start": start}),
+        }
+    )
+    T_init = perturb(frames[0].calibration.T_cam_lidar, 5.0, 1.0, torch.Generator().manual_seed(2))
+    coarse = _Recording()
+    result = Calibrator(config=config, coarse_matcher=coarse).calibrate(frames, T_init)
+    assert np.allclose(coarse.asked[0], T_init)  # the coarse passes from the initial either way
+    flow_answer = answers[0]  # the first passes run are the coarse matcher's
+    assert calibration_error(flow_answer, T_init).translation_cm > 0.1  # they moved
+    assert len(searched_from) == len(config.coarse.scores)
+    expected = T_init if start == "initial" else flow_answer
+    assert all(np.allclose(T, expected) for T in searched_from)
+    assert "flow" in next(c for c in result.coarse if c["stage"] == "choice")["alignment_after_first_pass_px"]
+
+
 def test_flow_coarse_frames_run_those_passes_on_a_subset(frames):
     """``flow_coarse_frames`` gives the coarse matcher's passes that many frames, spread evenly
     (first and last); the probe still weighs their answer on every frame."""

@@ -109,3 +109,23 @@ def test_truth_scores_best_and_the_surround_sharpens_its_peak(small_urban, kind)
         assert int(values.argmax()) == 0
         relative[surround] = float((values[1:] / values[0]).mean())
     assert relative[3.0] < relative[0.0] - 0.1
+
+
+def test_median_depth_is_the_contour_points_median_and_moves_with_the_extrinsic(small_urban):
+    """Known answer: the median ``z`` of the contour points in the camera frame; moving the points
+    1 m farther along the optical axis moves it 1 m (all of them were drawn in front)."""
+    T = np.asarray(small_urban[0].calibration.T_cam_lidar)
+    score = EdgeAlignment(small_urban, view=(T, 0.0))
+    z = (score.points[score.mask].numpy() @ T[:3, :3].T + T[:3, 3])[:, 2]
+    assert (z > 0).all()
+    assert score.median_depth(torch.as_tensor(T)) == pytest.approx(float(np.median(z)), abs=0.1)
+    farther = T.copy()
+    farther[2, 3] += 1.0
+    assert score.median_depth(torch.as_tensor(farther)) == pytest.approx(float(np.median(z)) + 1.0, abs=0.1)
+
+
+def test_median_depth_with_every_point_behind_the_camera_is_refused(small_urban):
+    behind = np.asarray(small_urban[0].calibration.T_cam_lidar).copy()
+    behind[2, 3] -= 1e4  # every point 10 km behind the camera
+    with pytest.raises(DataError, match="in front"):
+        EdgeAlignment(small_urban).median_depth(torch.as_tensor(behind))
