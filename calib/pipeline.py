@@ -340,7 +340,8 @@ class Calibrator:
                 coarse_starts[f"global ({kind})"] = result.T_cam_lidar
                 coarse += [{"stage": "global", "score": kind, **level} for level in result.levels]
         if searches or flow is not None:
-            lap("global and flow, side by side" if searches and flow else "global" if searches else "flow")
+            both = "flow, then global" if after_flow else "global and flow, side by side"
+            lap(both if searches and flow else "global" if searches else "flow")
         if self.config.contour.enabled:  # then the contour score over all six parameters at once
             refined = {}
             for origin, T_start in (coarse_starts or {"initial": T_init}).items():

@@ -409,6 +409,7 @@ def test_the_global_search_starts_where_coarse_start_says(frames, monkeypatch, s
     expected = T_init if start == "initial" else flow_answer
     assert all(np.allclose(T, expected) for T in searched_from)
     assert "flow" in next(c for c in result.coarse if c["stage"] == "choice")["alignment_after_first_pass_px"]
+    assert ("flow, then global" if start == "flow" else "global and flow, side by side") in result.stage_seconds
 
 
 def test_flow_coarse_frames_run_those_passes_on_a_subset(frames):
