@@ -187,6 +187,11 @@ VARIANTS = {
         "intensity 0.25, the global search from the flow's answer, its translation steps from the "
         "contours' median depth"
     ),  # the packaged config with coarse.start flow and coarse.depth_m null
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gboth-gdepth": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the global search from the initial extrinsic and the flow's answer together, "
+        "its translation steps from the contours' median depth"
+    ),  # the packaged config with coarse.start both and coarse.depth_m null
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
@@ -231,6 +236,9 @@ CHECK_GAIN = 0.05
 COARSE_GAIN = {"cgain5": 0.5, "nocgain": None}
 """The ``cgain`` variants' ``coarse_gain``: after the probe's choice by median, a start matched by
 more than 1.5x the chosen one's points at a lower median is taken instead (``nocgain``: off)."""
+SEARCH_START = {"gflow": "flow", "gboth": "both"}
+"""The ``gflow`` / ``gboth`` variants' ``coarse.start``: the global search after the flow passes,
+from their answer (``gflow``) or from it and the initial extrinsic together (``gboth``)."""
 SEARCH_DEPTH_M = {"gdepth": None, "gdepth10": 10.0}
 """The ``gdepth`` variants' ``coarse.depth_m``: the global search's translation steps from the
 median depth of the contour points (``gdepth``) or from a fixed 10 m (``gdepth10``)."""
@@ -336,7 +344,7 @@ def variant_configs(names: list[str]) -> dict[str, CalibrateConfig]:
                     update={
                         "enabled": "global" in stages,
                         "depth_m": value_named(SEARCH_DEPTH_M, stages, base.coarse.depth_m),
-                        "start": "flow" if "gflow" in stages else base.coarse.start,
+                        "start": value_named(SEARCH_START, stages, base.coarse.start),
                     }
                 ),
                 "contour": base.contour.model_copy(update={"enabled": "contour" in stages}),

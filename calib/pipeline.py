@@ -310,9 +310,9 @@ class Calibrator:
         rng = np.random.default_rng(seed)
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
         # the global search (torch) runs beside the learned matcher's passes (onnxruntime): both
-        # start from the initial extrinsic and share nothing; or (`coarse.start: flow`) after them,
-        # from their answer
-        flow, after_flow = None, self.config.coarse.start == "flow" and self.config.flow_coarse_passes > 0
+        # start from the initial extrinsic and share nothing; or (`coarse.start: flow | both`)
+        # after them, from their answer (and the initial extrinsic)
+        flow, after_flow = None, self.config.coarse.start != "initial" and self.config.flow_coarse_passes > 0
 
         def flow_passes() -> PassesResult:  # the learned matcher's passes from the initial extrinsic
             # pooled matchings (`pool_matchings`) average the finest level's noise; a coarser
@@ -326,9 +326,11 @@ class Calibrator:
 
         some, some_timing = _spread(frames, held, self.config.flow_coarse_frames)
         with ThreadPoolExecutor(1) as background:
+            searched_from = T_init
             if after_flow:
                 flow = flow_passes()
-            searched_from = flow.T_cam_lidar if after_flow else T_init
+                both = self.config.coarse.start == "both"
+                searched_from = np.stack([T_init, flow.T_cam_lidar]) if both else flow.T_cam_lidar
             searches = [  # Stage 4, coarse: edge alignment where the matcher cannot reach
                 (kind, background.submit(global_search, seen, searched_from, self.config.coarse, kind))
                 for kind in (self.config.coarse.scores if self.config.coarse.enabled else ())

@@ -42,10 +42,11 @@ class GlobalSearchConfig(BaseModel):
         description="run the global coarse stage before the dense passes (they go on from its answer "
         "only when their first pass ends better aligned there than from the initial extrinsic)",
     )
-    start: Literal["initial", "flow"] = Field(
+    start: Literal["initial", "flow", "both"] = Field(
         "initial",
         description="where the search starts: the initial extrinsic (beside the learned matcher's "
-        "coarse passes), or those passes' answer (after them; the initial where there are none)",
+        "coarse passes), those passes' answer (after them), or both together (after them; the "
+        "initial alone where there are none)",
     )
     scores: tuple[Literal[SCORE_KINDS], ...] = Field(  # type: ignore[valid-type]
         SCORE_KINDS, min_length=1, description="edge maps searched, each giving the dense passes a start"
@@ -82,44 +83,45 @@ class GlobalSearchResult:
 
 @dataclass
 class _Climb:
-    """One pattern search's state: the pose, its score, the current steps and the moves made."""
+    """One pattern search's state: the pose, its score, the start it came from (translation never
+    leaves it by more than ``max_translation_m``), its depth (translation step = rotation step x
+    this), the current rotation step and the moves made at this scale."""
 
     T: torch.Tensor
     best: float
-    rotation: float
-    translation: float
+    origin: torch.Tensor
+    depth_m: float
+    rotation: float = 0.0
     moves: int = 0
 
 
 def _climb(
-    score: EdgeAlignment,
-    sigma: float,
-    starts: list[tuple[torch.Tensor, float]],
-    rotation: float,
-    translation: float,
-    T_start: torch.Tensor,
-    config: GlobalSearchConfig,
-) -> list[tuple[torch.Tensor, float]]:
-    """Pattern search from each of ``starts`` (``(T (4, 4), score)``): each takes the best of its
-    12 neighbouring moves while that raises its score, halves its steps when none does, and stops
-    at a quarter of the first step. The climbs are independent; every round scores the moves of
-    all climbs still going in one call (one call of 8 x 12 poses costs about what one of 12 does)."""
-    climbs = [_Climb(T, best, rotation, translation) for T, best in starts]
+    score: EdgeAlignment, sigma: float, climbs: list[_Climb], rotation: float, config: GlobalSearchConfig
+) -> None:
+    """Pattern search, in place, from each of ``climbs`` at scale ``sigma`` with a first rotation
+    step of ``rotation`` (radians): each takes the best of its 12 neighbouring moves while that
+    raises its score, halves its steps when none does, and stops at a quarter of the first step.
+    The climbs are independent; every round scores the moves of all climbs still going in one
+    call (one call of 8 x 12 poses costs about what one of 12 does)."""
+    for climb in climbs:
+        climb.rotation, climb.moves = rotation, 0
     smallest = rotation / 4
     while going := [c for c in climbs if c.rotation >= smallest and c.moves < config.max_iterations]:
         for climb in going:
             climb.moves += 1
-        candidates = torch.cat([se3_exp(twist_steps(c.rotation, c.translation)) @ c.T for c in going])
+        candidates = torch.cat(
+            [se3_exp(twist_steps(c.rotation, c.rotation * c.depth_m)) @ c.T for c in going]
+        )
         values = score(candidates, sigma)
-        offset = (torch.linalg.inv(T_start) @ candidates)[:, :3, 3].norm(dim=1)
+        origins = torch.stack([c.origin for c in going]).repeat_interleave(12, dim=0)
+        offset = (torch.linalg.inv(origins) @ candidates)[:, :3, 3].norm(dim=1)
         values = torch.where(offset > config.max_translation_m, -1.0, values)
         for climb, moves, scored in zip(going, candidates.split(12), values.split(12), strict=True):
             k = int(scored.argmax())
             if float(scored[k]) > climb.best:
                 climb.T, climb.best = moves[k], float(scored[k])
             else:
-                climb.rotation, climb.translation = climb.rotation / 2, climb.translation / 2
-    return [(c.T, c.best) for c in climbs]
+                climb.rotation /= 2
 
 
 def _rotation_grid(cells: int, spacing: float) -> torch.Tensor:
@@ -133,37 +135,40 @@ def _rotation_grid(cells: int, spacing: float) -> torch.Tensor:
 def global_search(
     frames: list[Frame], T_init: np.ndarray, config: GlobalSearchConfig | None = None, kind: str = "magnitude"
 ) -> GlobalSearchResult:
-    """Climb the edge-alignment score with the edge map ``kind`` from ``T_init (4, 4)`` over
-    ``frames`` (one shared ``K``)."""
+    """Climb the edge-alignment score with the edge map ``kind`` over ``frames`` (one shared
+    ``K``) from ``T_init``: one extrinsic ``(4, 4)``, or ``(S, 4, 4)`` starts searched together
+    (each its own grid, best ``starts`` cells and depth; the answer the best at the finest scale
+    of them all). Contour points are drawn within the first start's view."""
     config = config if config is not None else GlobalSearchConfig()
+    origins = torch.as_tensor(np.asarray(T_init, np.float64)).reshape(-1, 4, 4)
     score = EdgeAlignment(
         frames,
         config.contour_points,
         kind=kind,
-        view=(np.asarray(T_init, np.float64), config.view_margin_deg),
+        view=(origins[0].numpy(), config.view_margin_deg),
         surround=config.surround,
     )
     focal = float(frames[0].K[0, 0])
-    T_start = torch.as_tensor(np.asarray(T_init, np.float64))
-    depth_m = config.depth_m if config.depth_m is not None else score.median_depth(T_start)
-    hypotheses: list[tuple[torch.Tensor, float]] = []
+    depths = [config.depth_m if config.depth_m is not None else score.median_depth(T) for T in origins]
+    climbs: list[_Climb] = []
     levels = []
     for level, sigma_ref in enumerate(config.sigmas_px):
         sigma = sigma_ref * focal / REFERENCE_FOCAL_PX
         rotation = sigma / focal  # one σ of image motion, radians
-        translation = rotation * depth_m
-        if level == 0:  # a grid of rotations around the start, its best cells the hypotheses
-            cells = se3_exp(_rotation_grid(config.grid, config.grid_spacing * rotation)) @ T_start
-            hypotheses = [
-                (cells[i], 0.0) for i in score(cells, sigma).topk(min(config.starts, len(cells))).indices
-            ]
-        scores = score(torch.stack([T for T, _ in hypotheses]), sigma)
+        if level == 0:  # a grid of rotations around each start, its best cells the hypotheses
+            grid = se3_exp(_rotation_grid(config.grid, config.grid_spacing * rotation))
+            for origin, depth_m in zip(origins, depths, strict=True):
+                cells = grid @ origin
+                best = score(cells, sigma).topk(min(config.starts, len(cells))).indices
+                climbs += [_Climb(cells[i], 0.0, origin, depth_m) for i in best]
+        scores = score(torch.stack([c.T for c in climbs]), sigma)
+        for climb, value in zip(climbs, scores, strict=True):
+            climb.best = float(value)
         before = float(scores.max())
-        hypotheses = [(T, float(value)) for (T, _), value in zip(hypotheses, scores, strict=True)]
-        hypotheses = _climb(score, sigma, hypotheses, rotation, translation, T_start, config)
-        after = max(value for _, value in hypotheses)
-        levels.append({"sigma_px": sigma, "score_before": before, "score_after": after})
-    T, best = max(hypotheses, key=lambda h: h[1])
-    if best < float(score(T_start, sigma)[0]):  # the search can only help
-        T = T_start
-    return GlobalSearchResult(T.numpy(), levels)
+        _climb(score, sigma, climbs, rotation, config)
+        levels.append({"sigma_px": sigma, "score_before": before, "score_after": max(c.best for c in climbs)})
+    answer = max(climbs, key=lambda c: c.best)
+    start_scores = score(origins, sigma)
+    if answer.best < float(start_scores.max()):  # the search can only help
+        return GlobalSearchResult(origins[int(start_scores.argmax())].numpy(), levels)
+    return GlobalSearchResult(answer.T.numpy(), levels)

@@ -372,10 +372,10 @@ def test_flow_coarse_passes_add_a_start_from_the_coarse_matcher(frames):
     assert result.to_dict()["stage_seconds"] == result.stage_seconds
 
 
-@pytest.mark.parametrize("start", ["initial", "flow"])
+@pytest.mark.parametrize("start", ["initial", "flow", "both"])
 def test_the_global_search_starts_where_coarse_start_says(frames, monkeypatch, start):
-    """``coarse.start``: the global search climbs from the initial extrinsic, or from the answer
-    of the coarse matcher's passes (then run first), which stays a start of its own."""
+    """``coarse.start``: the global search climbs from the initial extrinsic, from the answer of
+    the coarse matcher's passes (then run first), which stays a start of its own, or from both."""
     import calib.pipeline
 
     searched_from, answers = [], []
@@ -406,10 +406,11 @@ def test_the_global_search_starts_where_coarse_start_says(frames, monkeypatch, s
     flow_answer = answers[0]  # the first passes run are the coarse matcher's
     assert calibration_error(flow_answer, T_init).translation_cm > 0.1  # they moved
     assert len(searched_from) == len(config.coarse.scores)
-    expected = T_init if start == "initial" else flow_answer
-    assert all(np.allclose(T, expected) for T in searched_from)
+    expected = {"initial": T_init, "flow": flow_answer, "both": np.stack([T_init, flow_answer])}[start]
+    assert all(T.shape == expected.shape and np.allclose(T, expected) for T in searched_from)
     assert "flow" in next(c for c in result.coarse if c["stage"] == "choice")["alignment_after_first_pass_px"]
-    assert ("flow, then global" if start == "flow" else "global and flow, side by side") in result.stage_seconds
+    stage = "global and flow, side by side" if start == "initial" else "flow, then global"
+    assert stage in result.stage_seconds
 
 
 def test_flow_coarse_frames_run_those_passes_on_a_subset(frames):
