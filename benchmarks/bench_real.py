@@ -187,6 +187,10 @@ VARIANTS = {
         "intensity 0.25, the global search from the flow's answer, its translation steps from the "
         "contours' median depth"
     ),  # the packaged config with coarse.start flow and coarse.depth_m null
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gboth": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the global search from the initial extrinsic and the flow's answer together"
+    ),  # the packaged config with coarse.start both
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gboth-gdepth": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the global search from the initial extrinsic and the flow's answer together, "

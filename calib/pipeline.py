@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping
 from collections.abc import Sequence as FrameList
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from functools import partial
 
@@ -310,9 +310,12 @@ class Calibrator:
         rng = np.random.default_rng(seed)
         held = None if timing is None else replace(timing, estimate=False, restarts_s=())
         # the global search (torch) runs beside the learned matcher's passes (onnxruntime): both
-        # start from the initial extrinsic and share nothing; or (`coarse.start: flow | both`)
-        # after them, from their answer (and the initial extrinsic)
-        flow, after_flow = None, self.config.coarse.start != "initial" and self.config.flow_coarse_passes > 0
+        # start from the initial extrinsic and share nothing; or (`coarse.start: flow`) after them,
+        # from their answer; or (`both`) from the initial extrinsic beside them, their answer
+        # joining it when they end
+        start = self.config.coarse.start if self.config.flow_coarse_passes else "initial"
+        kinds = self.config.coarse.scores if self.config.coarse.enabled else ()
+        flow, handoff = None, Future()
 
         def flow_passes() -> PassesResult:  # the learned matcher's passes from the initial extrinsic
             # pooled matchings (`pool_matchings`) average the finest level's noise; a coarser
@@ -320,29 +323,36 @@ class Calibrator:
             flow_config = self.config.model_copy(
                 update={"passes": self.config.flow_coarse_passes, "pool_matchings": 1}
             )
-            return refine_passes(
-                some, T_init, self.coarse_matcher, self.support, flow_config, rng, timing=some_timing
-            )
+            try:
+                result = refine_passes(
+                    some, T_init, self.coarse_matcher, self.support, flow_config, rng, timing=some_timing
+                )
+            except BaseException as error:  # the searches waiting on it end too
+                handoff.set_exception(error)
+                raise
+            handoff.set_result(result.T_cam_lidar)
+            return result
+
+        def search(
+            kind: str, T_start: np.ndarray
+        ) -> Future:  # Stage 4, coarse: where the matcher cannot reach
+            later = handoff.result if start == "both" else None
+            return background.submit(global_search, seen, T_start, self.config.coarse, kind, later)
 
         some, some_timing = _spread(frames, held, self.config.flow_coarse_frames)
-        with ThreadPoolExecutor(1) as background:
-            searched_from = T_init
-            if after_flow:
+        # each search of `both` waits for the passes' answer: one worker per edge map
+        with ThreadPoolExecutor(len(kinds) if start == "both" and kinds else 1) as background:
+            if start == "flow":
                 flow = flow_passes()
-                both = self.config.coarse.start == "both"
-                searched_from = np.stack([T_init, flow.T_cam_lidar]) if both else flow.T_cam_lidar
-            searches = [  # Stage 4, coarse: edge alignment where the matcher cannot reach
-                (kind, background.submit(global_search, seen, searched_from, self.config.coarse, kind))
-                for kind in (self.config.coarse.scores if self.config.coarse.enabled else ())
-            ]
-            if self.config.flow_coarse_passes and not after_flow:
+            searches = [(kind, search(kind, flow.T_cam_lidar if flow else T_init)) for kind in kinds]
+            if self.config.flow_coarse_passes and flow is None:
                 flow = flow_passes()
             for kind, search in searches:  # the starts in the order they always had: the global ones first
                 result = search.result()
                 coarse_starts[f"global ({kind})"] = result.T_cam_lidar
                 coarse += [{"stage": "global", "score": kind, **level} for level in result.levels]
         if searches or flow is not None:
-            both = "flow, then global" if after_flow else "global and flow, side by side"
+            both = "flow, then global" if start == "flow" else "global and flow, side by side"
             lap(both if searches and flow else "global" if searches else "flow")
         if self.config.contour.enabled:  # then the contour score over all six parameters at once
             refined = {}

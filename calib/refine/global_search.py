@@ -17,6 +17,7 @@ finds the basin depends on the scene); the dense passes then keep the answer the
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -132,15 +133,43 @@ def _rotation_grid(cells: int, spacing: float) -> torch.Tensor:
     return twists
 
 
+def _grid_climbs(
+    score: EdgeAlignment,
+    sigma: float,
+    grid: torch.Tensor,
+    origins: list[torch.Tensor],
+    config: GlobalSearchConfig,
+) -> list[_Climb]:
+    """The best ``config.starts`` cells of the rotation ``grid (G, 4, 4)`` around each origin, as
+    climbs from it at its depth."""
+    climbs = []
+    for origin in origins:
+        depth_m = config.depth_m if config.depth_m is not None else score.median_depth(origin)
+        cells = grid @ origin
+        best = score(cells, sigma).topk(min(config.starts, len(cells))).indices
+        climbs += [_Climb(cells[i], 0.0, origin, depth_m) for i in best]
+    return climbs
+
+
+def _as_starts(T: np.ndarray) -> list[torch.Tensor]:
+    return list(torch.as_tensor(np.asarray(T, np.float64)).reshape(-1, 4, 4))
+
+
 def global_search(
-    frames: list[Frame], T_init: np.ndarray, config: GlobalSearchConfig | None = None, kind: str = "magnitude"
+    frames: list[Frame],
+    T_init: np.ndarray,
+    config: GlobalSearchConfig | None = None,
+    kind: str = "magnitude",
+    later: Callable[[], np.ndarray] | None = None,
 ) -> GlobalSearchResult:
     """Climb the edge-alignment score with the edge map ``kind`` over ``frames`` (one shared
     ``K``) from ``T_init``: one extrinsic ``(4, 4)``, or ``(S, 4, 4)`` starts searched together
     (each its own grid, best ``starts`` cells and depth; the answer the best at the finest scale
-    of them all). Contour points are drawn within the first start's view."""
+    of them all). ``later``, if given, returns more such starts; it is called once the first
+    ones' grids are scored (so a search can begin while another stage computes its answer), and
+    their grids join the search. Contour points are drawn within the first start's view."""
     config = config if config is not None else GlobalSearchConfig()
-    origins = torch.as_tensor(np.asarray(T_init, np.float64)).reshape(-1, 4, 4)
+    origins = _as_starts(T_init)
     score = EdgeAlignment(
         frames,
         config.contour_points,
@@ -149,7 +178,6 @@ def global_search(
         surround=config.surround,
     )
     focal = float(frames[0].K[0, 0])
-    depths = [config.depth_m if config.depth_m is not None else score.median_depth(T) for T in origins]
     climbs: list[_Climb] = []
     levels = []
     for level, sigma_ref in enumerate(config.sigmas_px):
@@ -157,10 +185,11 @@ def global_search(
         rotation = sigma / focal  # one σ of image motion, radians
         if level == 0:  # a grid of rotations around each start, its best cells the hypotheses
             grid = se3_exp(_rotation_grid(config.grid, config.grid_spacing * rotation))
-            for origin, depth_m in zip(origins, depths, strict=True):
-                cells = grid @ origin
-                best = score(cells, sigma).topk(min(config.starts, len(cells))).indices
-                climbs += [_Climb(cells[i], 0.0, origin, depth_m) for i in best]
+            climbs = _grid_climbs(score, sigma, grid, origins, config)
+            if later is not None:
+                more = _as_starts(later())
+                climbs += _grid_climbs(score, sigma, grid, more, config)
+                origins += more
         scores = score(torch.stack([c.T for c in climbs]), sigma)
         for climb, value in zip(climbs, scores, strict=True):
             climb.best = float(value)
@@ -168,7 +197,7 @@ def global_search(
         _climb(score, sigma, climbs, rotation, config)
         levels.append({"sigma_px": sigma, "score_before": before, "score_after": max(c.best for c in climbs)})
     answer = max(climbs, key=lambda c: c.best)
-    start_scores = score(origins, sigma)
+    start_scores = score(torch.stack(origins), sigma)
     if answer.best < float(start_scores.max()):  # the search can only help
         return GlobalSearchResult(origins[int(start_scores.argmax())].numpy(), levels)
     return GlobalSearchResult(answer.T.numpy(), levels)

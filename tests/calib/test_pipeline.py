@@ -2,6 +2,7 @@
 whose true extrinsic is known."""
 
 import json
+import threading
 from dataclasses import replace
 
 import numpy as np
@@ -375,15 +376,22 @@ def test_flow_coarse_passes_add_a_start_from_the_coarse_matcher(frames):
 @pytest.mark.parametrize("start", ["initial", "flow", "both"])
 def test_the_global_search_starts_where_coarse_start_says(frames, monkeypatch, start):
     """``coarse.start``: the global search climbs from the initial extrinsic, from the answer of
-    the coarse matcher's passes (then run first), which stays a start of its own, or from both."""
+    the coarse matcher's passes (then run first), which stays a start of its own, or from both
+    (the passes' answer joining the search begun beside them)."""
     import calib.pipeline
 
     searched_from, answers = [], []
     search, passes = calib.pipeline.global_search, calib.pipeline.refine_passes
 
-    def recorded_search(frames_, T_start, config, kind):
+    def recorded_search(frames_, T_start, config, kind, later=None):
+        def recorded_later():  # the starts that join the search once the coarse passes end
+            more = later()
+            searched_from[index] = np.stack([T_start, more])
+            return more
+
+        index = len(searched_from)
         searched_from.append(np.array(T_start))
-        return search(frames_, T_start, config, kind)
+        return search(frames_, T_start, config, kind, later and recorded_later)
 
     def recorded_passes(*args, **kwargs):
         result = passes(*args, **kwargs)
@@ -409,8 +417,35 @@ def test_the_global_search_starts_where_coarse_start_says(frames, monkeypatch, s
     expected = {"initial": T_init, "flow": flow_answer, "both": np.stack([T_init, flow_answer])}[start]
     assert all(T.shape == expected.shape and np.allclose(T, expected) for T in searched_from)
     assert "flow" in next(c for c in result.coarse if c["stage"] == "choice")["alignment_after_first_pass_px"]
-    stage = "global and flow, side by side" if start == "initial" else "flow, then global"
+    stage = "flow, then global" if start == "flow" else "global and flow, side by side"
     assert stage in result.stage_seconds
+
+
+def test_a_failing_coarse_matcher_ends_the_searches_waiting_for_it(frames):
+    """``coarse.start: both``: the searches begun beside the coarse passes wait for their answer;
+    when the passes raise, the calibration raises that error instead of waiting for ever."""
+
+    class Failing(_Recording):
+        def match(self, frame, T_cam_lidar):
+            raise RuntimeError("the coarse matcher broke")
+
+    coarse = FAST.coarse.model_copy(update={"start": "both"})
+    config = FAST.model_copy(update={"flow_coarse_passes": 1, "pyramid_focals_px": (), "coarse": coarse})
+    raised = []
+
+    def calibrate() -> None:
+        try:
+            Calibrator(config=config, coarse_matcher=Failing()).calibrate(
+                frames, frames[0].calibration.T_cam_lidar
+            )
+        except RuntimeError as error:
+            raised.append(str(error))
+
+    worker = threading.Thread(target=calibrate, daemon=True)
+    worker.start()
+    worker.join(timeout=120)
+    assert not worker.is_alive(), "the calibration still waits for the failed passes"
+    assert raised == ["the coarse matcher broke"]
 
 
 def test_flow_coarse_frames_run_those_passes_on_a_subset(frames):

@@ -144,6 +144,20 @@ def test_a_search_from_two_starts_is_at_least_as_good_as_from_either(urban):
     assert error.translation_cm < 1.0 and error.rotation_deg < 0.1
 
 
+def test_starts_given_later_join_the_search_as_if_given_at_once(urban):
+    """``later``: starts handed over once the first start's grid is scored end the search exactly
+    where the two given together end."""
+    T_ref = urban[0].calibration.T_cam_lidar
+    T_a, T_b = (perturb(T_ref, 8.0, 1.5, torch.Generator().manual_seed(s)) for s in (5, 6))
+    config = GlobalSearchConfig(max_iterations=4, grid=3)
+    together = global_search(urban, np.stack([T_a, T_b]), config)
+    asked = []
+    later = global_search(urban, T_a, config, later=lambda: asked.append(1) or T_b)
+    assert asked == [1]
+    assert np.allclose(later.T_cam_lidar, together.T_cam_lidar, atol=1e-12)
+    assert later.levels == together.levels
+
+
 def test_the_calibrator_records_both_coarse_stages(urban):
     T_ref = urban[0].calibration.T_cam_lidar
     T_init = perturb(T_ref, 5.0, 2.0, torch.Generator().manual_seed(4))
