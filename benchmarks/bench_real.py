@@ -187,6 +187,11 @@ VARIANTS = {
         "intensity 0.25, the global search from the flow's answer, its translation steps from the "
         "contours' median depth"
     ),  # the packaged config with coarse.start flow and coarse.depth_m null
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-ginit-gdepth10": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the global search from the initial extrinsic beside the flow passes, its "
+        "translation steps from a fixed 10 m depth"
+    ),  # the packaged config until stop 71: coarse.start initial, coarse.depth_m 10
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gboth": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the global search from the initial extrinsic and the flow's answer together"
@@ -240,9 +245,10 @@ CHECK_GAIN = 0.05
 COARSE_GAIN = {"cgain5": 0.5, "nocgain": None}
 """The ``cgain`` variants' ``coarse_gain``: after the probe's choice by median, a start matched by
 more than 1.5x the chosen one's points at a lower median is taken instead (``nocgain``: off)."""
-SEARCH_START = {"gflow": "flow", "gboth": "both"}
-"""The ``gflow`` / ``gboth`` variants' ``coarse.start``: the global search after the flow passes,
-from their answer (``gflow``) or from it and the initial extrinsic together (``gboth``)."""
+SEARCH_START = {"ginit": "initial", "gflow": "flow", "gboth": "both"}
+"""The ``ginit`` / ``gflow`` / ``gboth`` variants' ``coarse.start``: the global search from the
+initial extrinsic beside the flow passes (``ginit``, packaged until stop 71), after them from their
+answer (``gflow``), or from both, the answer joining (``gboth``, packaged since)."""
 SEARCH_DEPTH_M = {"gdepth": None, "gdepth10": 10.0}
 """The ``gdepth`` variants' ``coarse.depth_m``: the global search's translation steps from the
 median depth of the contour points (``gdepth``) or from a fixed 10 m (``gdepth10``)."""

@@ -75,7 +75,6 @@ def vineyard() -> list[Frame]:
     return [synth.render(i).frame for i in range(4)]
 
 
-@pytest.mark.slow
 def test_translation_steps_from_the_contours_depth_reach_the_vineyards_truth(vineyard):
     """Known answer: from 10 cm / 2° off, steps sized at the contours' median depth (2 m) climb to
     within 2 cm / 0.4° of the truth; sized at urban's 10 m a translation step moves the vineyard's
