@@ -195,7 +195,12 @@ VARIANTS = {
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gboth": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the global search from the initial extrinsic and the flow's answer together"
-    ),  # the packaged config with coarse.start both
+    ),  # the packaged config with coarse.start both (stop 71's runs: depth 10 m, packaged then)
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gboth-gdepth10": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, the global search from the initial extrinsic and the flow's answer together, "
+        "its translation steps from a fixed 10 m depth"
+    ),  # the packaged config with coarse.start both and coarse.depth_m 10
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gboth-gdepth": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the global search from the initial extrinsic and the flow's answer together, "

@@ -1,9 +1,11 @@
 """Stage 4's global coarse stage: where the dense matcher cannot reach (its capture range is about
 a dozen pixels), climb the edge-alignment score (:class:`calib.match.edge_alignment.EdgeAlignment`)
 coarse to fine over a pyramid of blur scales ``σ``. At the coarsest scale a dense grid of rotations
-around the start is scored; its best ``starts`` cells are climbed over all six parameters, and each
-of them is carried through every finer scale. The answer is the hypothesis that scores best at the
-finest scale. Each scale's steps scale with ``σ``; a move is taken only when the score rises.
+around each start (the initial extrinsic, and the learned matcher's answer with ``start: both``) is
+scored; its best ``starts`` cells are climbed over all six parameters, and each of them is carried
+through every finer scale. The answer is the hypothesis that scores best at the finest scale. Each
+scale's steps scale with ``σ``, a translation step moving the contours at their median depth as far
+as a rotation step (``depth_m: null``); a move is taken only when the score rises.
 
 Why this shape (synthetic urban at KITTI's scale from 8° / 40 cm, README): at 16 px the score
 rates poses 50–130 cm off above the truth on some scenes, so a search that starts there runs off;
