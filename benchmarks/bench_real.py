@@ -195,7 +195,7 @@ VARIANTS = {
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gboth": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the global search from the initial extrinsic and the flow's answer together"
-    ),  # the packaged config with coarse.start both (stop 71's runs: depth 10 m, packaged then)
+    ),  # the packaged config with coarse.start both: the packaged config itself since stop 71
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gboth-gdepth10": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the global search from the initial extrinsic and the flow's answer together, "

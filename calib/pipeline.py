@@ -333,9 +333,7 @@ class Calibrator:
             handoff.set_result(result.T_cam_lidar)
             return result
 
-        def search(
-            kind: str, T_start: np.ndarray
-        ) -> Future:  # Stage 4, coarse: where the matcher cannot reach
+        def submit_search(kind: str, T_start: np.ndarray) -> Future:  # Stage 4, coarse: beyond the matcher
             later = handoff.result if start == "both" else None
             return background.submit(global_search, seen, T_start, self.config.coarse, kind, later)
 
@@ -344,7 +342,7 @@ class Calibrator:
         with ThreadPoolExecutor(len(kinds) if start == "both" and kinds else 1) as background:
             if start == "flow":
                 flow = flow_passes()
-            searches = [(kind, search(kind, flow.T_cam_lidar if flow else T_init)) for kind in kinds]
+            searches = [(kind, submit_search(kind, flow.T_cam_lidar if flow else T_init)) for kind in kinds]
             if self.config.flow_coarse_passes and flow is None:
                 flow = flow_passes()
             for kind, search in searches:  # the starts in the order they always had: the global ones first

@@ -48,8 +48,8 @@ class GlobalSearchConfig(BaseModel):
     start: Literal["initial", "flow", "both"] = Field(
         "initial",
         description="where the search starts: the initial extrinsic (beside the learned matcher's "
-        "coarse passes), those passes' answer (after them), or both together (after them; the "
-        "initial alone where there are none)",
+        "coarse passes), those passes' answer (after them), or both (begun from the initial beside "
+        "them, their answer joining when they end; the initial alone where there are none)",
     )
     scores: tuple[Literal[SCORE_KINDS], ...] = Field(  # type: ignore[valid-type]
         SCORE_KINDS, min_length=1, description="edge maps searched, each giving the dense passes a start"
@@ -154,6 +154,7 @@ def _grid_climbs(
 
 
 def _as_starts(T: np.ndarray) -> list[torch.Tensor]:
+    """``(4, 4)`` or ``(S, 4, 4)`` extrinsics as a list of float64 ``(4, 4)`` tensors."""
     return list(torch.as_tensor(np.asarray(T, np.float64)).reshape(-1, 4, 4))
 
 
