@@ -165,11 +165,11 @@ VARIANTS = {
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-cgain5": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the probe taking a start matched by 1.5x the chosen one's points at a lower median"
-    ),  # the packaged config of stop 68 with coarse_gain 0.5
+    ),  # the packaged config with coarse_gain 0.5: the packaged config itself since stop 72
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-nocgain": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the probe by its median alone"
-    ),  # the packaged config with coarse_gain null
+    ),  # the packaged config with coarse_gain null: the packaged config until stop 72
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-gdepth": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25, the global search's translation steps from the contours' median depth"
