@@ -72,6 +72,8 @@ VARIANTS: dict[str, dict] = {
     "border-inside": {"edge": {"border": "inside"}},
     # each edge pixel of the LiDAR's virtual view carried at its own depth unless at a step (stop 63)
     "carry-own": {"edge": {"carry": "own"}},
+    # both (stop 73: the vineyard's δt stretch loses its z lean with the two together, not alone)
+    "inside-own": {"edge": {"border": "inside", "carry": "own"}},
     # every pass checked, as packaged until stop 67 (packaged: a pass moving the matched points
     # less than 0.1 working px settles its level unchecked, settle_px 0.1)
     "no-settle": {"settle_px": 0.0},
