@@ -1,9 +1,11 @@
-"""Two ``bench_real.py`` results files compared run by run: the same datasets, levels and draws
-under two codes, two variants or two start nudges (``bench_real.py --nudge``). Per dataset, level
-and variant present in both: how far each run's answer moved between the two (median, 90th
-percentile and largest, in cm and °), how many ended where they did (within 0.005 cm and 0.0005°,
-the printed digits), how many moved nearer the reference in translation and in rotation, and both
-files' success counts, medians and seconds over the runs they share. ``--plot PNG`` draws each
+"""Two ``bench_real.py`` (or two ``bench_time_offset.py``) results files compared run by run: the
+same datasets, levels and draws under two codes, two variants or two start nudges
+(``bench_real.py --nudge``). Per dataset, level and variant present in both (for
+``bench_time_offset.py``: per world, offset and variant, its ``--first-run`` numbering the draws):
+how far each run's answer moved between the two (median, 90th percentile and largest, in cm and
+°), how many ended where they did (within 0.005 cm and 0.0005°, the printed digits), how many moved
+nearer the reference in translation and in rotation, and both files' success counts, medians,
+median time-offset errors (where estimated) and seconds over the runs they share. ``--plot PNG`` draws each
 pair's two answers (translation against rotation error) joined by a line, a panel per dataset,
 level and variant: where one side lies up and to the left of the other, the two trade rotation for
 translation.
@@ -30,17 +32,49 @@ SAME_CM, SAME_DEG = 0.005, 0.0005
 """Two answers this close are the same run (what bench_real prints)."""
 
 
-def runs_of(results: dict) -> dict[tuple[str, str, str], dict[int, dict]]:
-    """``{(dataset, level, variant): {run: run}}`` of a bench_real results file, runs that returned."""
-    out: dict[tuple[str, str, str], dict[int, dict]] = {}
+TIME_OFFSET_SUCCESS = (2.0, 0.2)
+"""``bench_time_offset.py``'s success line (its sequences have ten frames or more)."""
+
+
+def _time_offset_runs(results: dict) -> dict[tuple[str, str, str], tuple[dict[int, dict], tuple]]:
+    """A ``bench_time_offset.py`` file's rows as :func:`runs_of` gives them: draw ``first_run + i``
+    is the row's ``i``-th run, its answer and its time-offset error."""
+    first = int(results.get("first_run", 0))
+    out = {}
+    for row in results["rows"]:
+        key = (row["world"], f"{row['offset_ms']:g} ms", row["variant"])
+        runs = {
+            first + i: {
+                "final": {"cm": r["translation_cm"], "deg": r["rotation_deg"]},
+                "seconds": r["seconds"],
+                "dt_error_ms": r["time_offset_error_ms"],
+            }
+            for i, r in enumerate(row["per_run"])
+        }
+        out[key] = (runs, TIME_OFFSET_SUCCESS)
+    return out
+
+
+def runs_of(results: dict) -> dict[tuple[str, str, str], tuple[dict[int, dict], tuple]]:
+    """``{(dataset, level, variant): ({run: run}, success)}`` of a results file, runs that returned;
+    ``success`` the ``(cm, °)`` line a run must end within."""
+    if "rows" in results:
+        return _time_offset_runs(results)
+    out = {}
     for part in ("real", "synthetic"):
         for dataset, row in results.get(part, {}).items():
+            success = tuple(results["success_cm_deg"]["multi" if row["frames"] > 1 else "single"])
             for level, variants in row["levels"].items():
                 for variant, entry in variants.items():
-                    out[(dataset, level, variant)] = {
-                        int(r["run"]): r for r in entry["runs"] if r.get("final") is not None
-                    }
+                    runs = {int(r["run"]): r for r in entry["runs"] if r.get("final") is not None}
+                    out[(dataset, level, variant)] = (runs, success)
     return out
+
+
+def _dt_median(runs: dict[int, dict], shared: list[int]) -> float | None:
+    """The median |time-offset error| (ms) of the shared runs; ``None`` where one did not estimate it."""
+    errors = [runs[i].get("dt_error_ms") for i in shared]
+    return None if None in errors else float(np.median(np.abs(errors)))
 
 
 def compared(a: dict[int, dict], b: dict[int, dict], success: tuple[float, float]) -> dict | None:
@@ -76,6 +110,7 @@ def compared(a: dict[int, dict], b: dict[int, dict], success: tuple[float, float
             side: float(np.median([runs[i]["seconds"] for i in shared]))
             for side, runs in (("a", a), ("b", b))
         },
+        "dt_error_ms_median": {side: _dt_median(runs, shared) for side, runs in (("a", a), ("b", b))},
         "finals": {"run": shared, **{side: f.tolist() for side, f in final.items()}},
     }
 
@@ -92,18 +127,22 @@ def pair(first: dict, second: dict, variant: str | None = None, other: str | Non
         twin = key if other is None else (*key[:2], other)
         if twin not in b:
             continue
-        frames = (first.get("real", {}) | first.get("synthetic", {}))[key[0]]["frames"]
-        success = tuple(first["success_cm_deg"]["multi" if frames > 1 else "single"])
-        if (row := compared(a[key], b[twin], success)) is not None:
+        (runs_a, success), (runs_b, _) = a[key], b[twin]
+        if (row := compared(runs_a, runs_b, success)) is not None:
             out["/".join(key) if other is None else f"{'/'.join(key)} against {other}"] = row
     return out
+
+
+def _ms(value: float | None) -> str:
+    return "–" if value is None else f"{value:.2f}"
 
 
 def table(rows: dict[str, dict]) -> list[str]:
     lines = [
         "| dataset / level / variant | runs | moved cm median / p90 / max | moved ° median / p90 / max "
-        "| same | B nearer cm / ° | success A / B | cm median A / B | ° median A / B | s A / B |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| same | B nearer cm / ° | success A / B | cm median A / B | ° median A / B "
+        "| δt error ms median A / B | s A / B |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for key, r in rows.items():
         cm, deg, ok = r["moved_cm"], r["moved_deg"], r["success"]
@@ -113,6 +152,7 @@ def table(rows: dict[str, dict]) -> list[str]:
             f"| {deg['median']:.3f} / {deg['p90']:.3f} / {deg['max']:.3f} | {r['same']} "
             f"| {r['b_nearer_cm']} / {r['b_nearer_deg']} | {ok['a']} / {ok['b']} "
             f"| {medians['a']:.2f} / {medians['b']:.2f} | {degrees['a']:.3f} / {degrees['b']:.3f} "
+            f"| {_ms(r['dt_error_ms_median']['a'])} / {_ms(r['dt_error_ms_median']['b'])} "
             f"| {seconds['a']:.1f} / {seconds['b']:.1f} |"
         )
     return lines
@@ -153,7 +193,9 @@ def plot(rows: dict[str, dict], path: Path, names: tuple[str, str] = ("A", "B"))
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("first", type=Path, help="results file A (bench_real.py --name ...)")
+    parser.add_argument(
+        "first", type=Path, help="results file A (bench_real.py or bench_time_offset.py --name ...)"
+    )
     parser.add_argument("second", type=Path, help="results file B, the same draws")
     parser.add_argument("--variant", default=None, help="only this variant")
     parser.add_argument(

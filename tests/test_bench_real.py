@@ -105,6 +105,34 @@ def test_paired_runs_move_as_their_answers_do():
     )
 
 
+def _time_offset_file(answers: list[tuple[float, float, float | None]], first_run: int = 0) -> dict:
+    """A bench_time_offset.py results file: one vineyard row, its runs' (cm, °, δt error ms)."""
+    runs = [
+        {"translation_cm": cm, "rotation_deg": deg, "time_offset_error_ms": dt, "seconds": 60.0}
+        for cm, deg, dt in answers
+    ]
+    return {
+        "first_run": first_run,
+        "rows": [{"world": "vineyard", "offset_ms": 20.0, "variant": "odometry", "per_run": runs}],
+    }
+
+
+def test_pair_runs_pairs_time_offset_files_by_their_draws():
+    """bench_time_offset.py parts: draw first_run + i is a row's i-th run; the δt errors' medians
+    are compared; a side that kept δt fixed reads '–'."""
+    a = _time_offset_file([(1.2, 0.06, -0.1), (1.6, 0.08, 0.3), (1.0, 0.05, 0.2), (3.0, 0.3, 0.5)])
+    b = _time_offset_file([(0.9, 0.07, 0.4), (1.6, 0.08, 0.3)], first_run=2)  # draws 2 and 3
+    row = pair_runs.pair(a, b)["vineyard/20 ms/odometry"]
+    assert row["finals"]["run"] == [2, 3] and row["finals"]["a"] == [[1.0, 0.05], [3.0, 0.3]]
+    assert row["b_nearer_cm"] == 2 and row["b_nearer_deg"] == 1
+    assert row["success"] == {"a": 1, "b": 2}  # within 2 cm / 0.2°: A's draw 3 is not
+    assert row["dt_error_ms_median"] == {"a": pytest.approx(0.35), "b": pytest.approx(0.35)}
+    fixed = _time_offset_file([(1.0, 0.05, None), (3.0, 0.3, None)], first_run=2)
+    line = pair_runs.table(pair_runs.pair(fixed, b))[2]
+    assert pair_runs.pair(fixed, b)["vineyard/20 ms/odometry"]["dt_error_ms_median"]["a"] is None
+    assert "| – / 0.35 |" in line
+
+
 def test_pair_runs_cli_prints_the_table_and_draws_the_pairs(tmp_path, capsys, monkeypatch):
     a = _file({0: (1.0, 0.1), 1: (1.5, 0.1), 2: (1.0, 0.1)})
     b = _file({0: (1.0, 0.1), 1: (1.0, 0.2), 2: (3.0, 0.05)})
