@@ -112,9 +112,8 @@ def _climb(
     while going := [c for c in climbs if c.rotation >= smallest and c.moves < config.max_iterations]:
         for climb in going:
             climb.moves += 1
-        candidates = torch.cat(
-            [se3_exp(twist_steps(c.rotation, c.rotation * c.depth_m)) @ c.T for c in going]
-        )
+        steps = torch.cat([twist_steps(c.rotation, c.rotation * c.depth_m) for c in going])
+        candidates = se3_exp(steps) @ torch.stack([c.T for c in going]).repeat_interleave(12, dim=0)
         values = score(candidates, sigma)
         origins = torch.stack([c.origin for c in going]).repeat_interleave(12, dim=0)
         offset = (torch.linalg.inv(origins) @ candidates)[:, :3, 3].norm(dim=1)

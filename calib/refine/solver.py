@@ -15,6 +15,7 @@ point ``q_i``, deskewed to its scan's stamp, is seen at the camera's time as
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -266,25 +267,36 @@ def refine_extrinsic(
     scan = torch.as_tensor(time.scan) if time is not None else None
     n_params = 7 if time is not None and time.estimate else 6
 
-    def evaluate(T: torch.Tensor, offset: float) -> tuple[float, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Cost, residuals ``(N, 2)``, IRLS weights ``(N,)`` and the Jacobian ``(N, 2, n_params)``."""
-        points, d_offset = _at_camera_time(p, time, scan, offset)
+    # a held δt moves every point once, not at every evaluation
+    held = _at_camera_time(p, time, scan, offset) if n_params == 6 else None
+
+    def evaluate(
+        T: torch.Tensor, offset: float
+    ) -> tuple[float, torch.Tensor, torch.Tensor, Callable[[], torch.Tensor]]:
+        """Cost, residuals ``(N, 2)``, IRLS weights ``(N,)`` and a function giving the Jacobian
+        ``(N, 2, n_params)`` there (made only for a step that is taken)."""
+        points, d_offset = held if held is not None else _at_camera_time(p, time, scan, offset)
         q = points @ T[:3, :3].T + T[:3, 3]
         uvw = q @ K.T
         r = uvw[:, :2] / uvw[:, 2:3] - target
         rho, w = robust_weight((r * r).sum(1), config.loss, config.loss_scale_px)
-        if bool((q[:, 2] <= 0).any()):
-            return math.inf, r, w, torch.empty(0)
-        J = reprojection_jacobian(q, K)
-        if n_params == 7:  # ∂π/∂δt = ∂π/∂q · R · ∂p/∂δt
-            J = torch.cat([J, pinhole_jacobian(q, K) @ (d_offset @ T[:3, :3].T)[:, :, None]], -1)
-        return float((s * rho).sum()), r, s * w, J
 
-    cost, r, w, J = evaluate(T, offset)
+        def jacobian() -> torch.Tensor:
+            J = reprojection_jacobian(q, K)
+            if n_params == 7:  # ∂π/∂δt = ∂π/∂q · R · ∂p/∂δt
+                J = torch.cat([J, pinhole_jacobian(q, K) @ (d_offset @ T[:3, :3].T)[:, :, None]], -1)
+            return J
+
+        if bool((q[:, 2] <= 0).any()):
+            return math.inf, r, w, jacobian
+        return float((s * rho).sum()), r, s * w, jacobian
+
+    cost, r, w, jacobian = evaluate(T, offset)
     if not math.isfinite(cost):
         raise NumericalError(
             "refinement: points lie behind the camera or the cost is not finite at the start"
         )
+    J = jacobian()
     initial_cost, lam, converged, iterations = cost, config.initial_damping, False, 0
     while iterations < config.max_iterations:
         iterations += 1
@@ -292,9 +304,9 @@ def refine_extrinsic(
         delta = -torch.linalg.solve(H + lam * torch.diag(torch.diag(H)), g)
         T_new = se3_exp(delta[:6]) @ T
         offset_new = offset + float(delta[6]) if n_params == 7 else offset
-        new_cost, r_new, w_new, J_new = evaluate(T_new, offset_new)
+        new_cost, r_new, w_new, jacobian = evaluate(T_new, offset_new)
         if math.isfinite(new_cost) and new_cost < cost:
-            T, offset, cost, r, w, J = T_new, offset_new, new_cost, r_new, w_new, J_new
+            T, offset, cost, r, w, J = T_new, offset_new, new_cost, r_new, w_new, jacobian()
             lam = max(lam / 10, 1e-12)
         else:
             lam *= 10

@@ -92,6 +92,37 @@ def test_score_shape_over_candidates(small_urban):
     assert score.per_frame(T, 4.0).shape == (1, 2)
 
 
+def test_score_is_the_mean_map_value_under_the_projected_contours(small_urban):
+    """Known answer, extrinsic by extrinsic in numpy: each contour point projected with
+    ``K (R p + t)``, the map read bilinearly there (0 outside the image or within 0.5 m of the
+    camera), averaged over the frame's points; several extrinsics scored in one call, one of them
+    turned so that part of the contours falls outside the image."""
+    score = EdgeAlignment(small_urban, 300, kind="magnitude")
+    T_ref = small_urban[0].calibration.T_cam_lidar
+    turns = np.array([[0, 0, 0, 0, 0, 0], [0.1, -0.05, 0.2, 0.02, -0.01, 0.03], [0, 0, 0, 0, 0.5, 0]])
+    T = se3_exp(torch.as_tensor(turns, dtype=torch.float64)) @ torch.as_tensor(T_ref)
+    sigma = 3.0
+    got = score.per_frame(T, sigma).numpy()
+    maps = score.maps(sigma)[:, 0].numpy().astype(np.float64)
+    H, W = score.size
+    K = np.asarray(small_urban[0].K)
+    for c, T_c in enumerate(T.numpy()):
+        for f in range(len(small_urban)):
+            p = score.points[f][score.mask[f]].numpy()
+            q = p @ T_c[:3, :3].T + T_c[:3, 3]
+            u, v = (q @ K.T)[:, 0] / q[:, 2], (q @ K.T)[:, 1] / q[:, 2]
+            u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
+            value = np.zeros(len(p))
+            for du in (0, 1):
+                for dv in (0, 1):
+                    w = (1 - np.abs(u - u0 - du)) * (1 - np.abs(v - v0 - dv))
+                    col, row = u0 + du, v0 + dv
+                    inside = (col >= 0) & (col < W) & (row >= 0) & (row < H) & (q[:, 2] > 0.5)
+                    value[inside] += w[inside] * maps[f, row[inside], col[inside]]
+            assert got[c, f] == pytest.approx(value.mean(), abs=2e-5)
+    assert (got[2] != got[0]).all()  # the turned extrinsic reads elsewhere
+
+
 @pytest.mark.parametrize("kind", ["magnitude", "orientation"])
 def test_truth_scores_best_and_the_surround_sharpens_its_peak(small_urban, kind):
     """Moves of ±5 cm and ±0.5° along each axis from the true extrinsic score lower than the

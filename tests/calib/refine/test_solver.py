@@ -202,6 +202,22 @@ def test_a_fixed_offset_is_held_and_ignoring_it_biases_the_extrinsic():
     assert calibration_error(ignored.T_cam_lidar, T_ref).translation_cm > 5.0  # ~10 m/s x 20 ms
 
 
+def test_a_held_offset_solves_exactly_as_points_moved_there_beforehand():
+    """A held δt moves the points once (not at every evaluation): the same steps, bit for bit,
+    as the solve without a time model on the points already seen at the camera's time."""
+    T_ref, points, scan, twists, uv = moving_scans(0.020, n_per_scan=500)
+    T_init = perturb(T_ref, 5.0, 1.0, torch.Generator().manual_seed(2))
+    held = refine_extrinsic(
+        points, uv, np.ones(len(points)), KITTI_K, T_init, time=TimeModel(scan, twists, 0.020, estimate=False)
+    )
+    A = se3_exp(-0.020 * torch.as_tensor(twists[:, 1]))[torch.as_tensor(scan)]  # exp(−δt ξ_f) per point
+    moved = (torch.einsum("nij,nj->ni", A[:, :3, :3], torch.as_tensor(points)) + A[:, :3, 3]).numpy()
+    plain = refine_extrinsic(moved, uv, np.ones(len(points)), KITTI_K, T_init)
+    assert held.iterations == plain.iterations and held.cost == plain.cost
+    np.testing.assert_array_equal(held.T_cam_lidar, plain.T_cam_lidar)
+    assert calibration_error(held.T_cam_lidar, T_ref).translation_cm < 0.01
+
+
 def test_time_model_of_the_wrong_length_is_refused():
     T_ref, points, scan, twists, uv = moving_scans(0.0, n_per_scan=10)
     with pytest.raises(ValueError, match="time model"):
