@@ -26,7 +26,7 @@ from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, tag
 
-__all__ = ["check_line", "load_check_config", "run_check", "spread"]
+__all__ = ["CONFIRMS_DEG_CM", "check_line", "confirms", "load_check_config", "run_check", "spread"]
 
 
 def load_check_config(path: Path | None = None, **overrides: object) -> CheckConfig:
@@ -69,17 +69,38 @@ def _fmt(value: float | None, unit: str, digits: int) -> str:
     return "not observed" if value is None else f"{value:.{digits}f}{space}{unit}"
 
 
+CONFIRMS_DEG_CM = (1.0, 20.0)
+"""Data that shows errors only from this rotation (°) or translation (cm) up cannot confirm an
+extrinsic: its ``good`` says little (one nuScenes sweep shows 2° / 20 cm, and a calibration
+31 cm off checks good there; README, stop 75), and the line says so."""
+
+
+def confirms(detectable: dict) -> bool:
+    """Whether data whose smallest shown error is ``detectable`` (``rotation_deg``,
+    ``translation_cm``; ``None``: not observed) can confirm an extrinsic (:data:`CONFIRMS_DEG_CM`)."""
+    shown = (detectable["rotation_deg"], detectable["translation_cm"])
+    return all(
+        value is not None and value < limit for value, limit in zip(shown, CONFIRMS_DEG_CM, strict=True)
+    )
+
+
 def check_line(check: dict) -> str:
     """One line of a check's answer, from :meth:`CheckResult.to_dict` (or a dict with its
     ``verdict``, ``suggested_correction``, ``significance``, ``peak_share``, ``peak_shell_deg``
-    and ``detectable_error``)."""
+    and ``detectable_error``); a ``good`` on data that cannot confirm it says so."""
     c, d = check["suggested_correction"], check["detectable_error"]
-    return (
+    line = (
         f"{check['verdict']}: best fit nearby {c['rotation_deg']:.2f}° / {c['translation_cm']:.1f} cm away "
         f"(significance {check['significance']['joint']:.1f}), {check['peak_share']:.0%} of its "
         f"neighbours {check['peak_shell_deg']:g}° away align better; smallest error this data shows "
         f"{_fmt(d['rotation_deg'], '°', 2)} / {_fmt(d['translation_cm'], 'cm', 1)}"
     )
+    if check["verdict"] == "good" and not confirms(d):
+        line += (
+            ", so it cannot confirm the extrinsic more finely: an error below that checks good "
+            "too (more frames, or frames with more depth edges, show smaller ones)"
+        )
+    return line
 
 
 def _markdown(output: dict) -> str:

@@ -165,3 +165,28 @@ def test_the_answer_is_checked_and_a_wrong_one_is_flagged(still_vineyard, tmp_pa
         still_vineyard, "00", "uniform", "perturb:20,3", tmp_path / "unchecked", FAST, check=False
     )
     assert unchecked["check"] is None
+
+
+def test_a_good_check_on_frames_that_show_only_large_errors_says_it_cannot_confirm():
+    """A check of data that shows errors only from 2° / 20 cm up (one nuScenes sweep) still says
+    good, and the line adds that it cannot confirm the extrinsic more finely; data that shows
+    0.72° / 10 cm (four KITTI frames) gets no such line, nor does a bad verdict."""
+    from supportnet.cli.cmd_calibrate import _check_line
+
+    def check(verdict: str, deg: float | None, cm: float | None) -> dict:
+        return {
+            "verdict": verdict,
+            "suggested_correction": {"rotation_deg": 0.46, "translation_cm": 2.6},
+            "significance": {"joint": 0.6},
+            "peak_share": 0.0,
+            "peak_shell_deg": 1.0,
+            "detectable_error": {"rotation_deg": deg, "translation_cm": cm},
+        }
+
+    unconfirmed = "cannot confirm the extrinsic more finely"
+    assert unconfirmed in _check_line(check("good", 2.0, 20.0))
+    assert unconfirmed in _check_line(check("good", 0.72, 28.6))
+    assert unconfirmed in _check_line(check("good", None, 10.0))
+    assert unconfirmed not in _check_line(check("good", 0.72, 10.0))
+    bad = _check_line(check("bad", 2.0, 20.0))
+    assert "likely wrong" in bad and unconfirmed not in bad
