@@ -204,6 +204,11 @@ class ProjectedScan:
         """``(H, W)`` float32 intensity of the nearest point per pixel, 0 where none."""
         return self._render(self.intensity)
 
+    def depth_and_intensity_images(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`depth_image` and :meth:`intensity_image` from one z-buffer (the same pixels win)."""
+        both = self._render(np.column_stack([self.depth, self.intensity]))
+        return both[..., 0], both[..., 1]
+
     def _render(self, values: np.ndarray | None) -> np.ndarray:
         v = None if values is None else torch.as_tensor(values, dtype=torch.float64)
         img = render_image(torch.as_tensor(self.uv), torch.as_tensor(self.depth), self.image_size, v)

@@ -8,6 +8,9 @@ residual is the flow at its pixel.
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +18,7 @@ import torch
 
 from calib.data.types import Frame
 from calib.errors import DataError
-from calib.features import RingProfile
+from calib.features import RingProfile, ring_spacing_profile
 from calib.match.correspondences import Correspondences, working_view
 from calib.match.edge_matcher import lidar_edges
 from calib.projection import ProjectedScan, Visibility, project_scan
@@ -30,6 +33,10 @@ SHIPPED_FLOW_MODEL = Path(__file__).resolve().parents[1] / "assets" / "flow_matc
 VISIBILITY = Visibility(window=3)
 """The occlusion test of the projected scan, in training and at run time alike."""
 
+RINGS_KEPT = 32
+"""Scans whose ring profile a :class:`FlowMatcher` keeps (a calibration matches a few frames again
+and again)."""
+
 
 def lidar_image(
     scan: ProjectedScan,
@@ -42,14 +49,18 @@ def lidar_image(
     """The network's LiDAR input of a scan projected under ``T_cam_lidar`` with ``K``:
     ``(5, H, W)`` float32 (see :func:`supportnet.nets.flow_net.lidar_input`); ``rings``: the
     whole scan's ring profile where already known (else measured from ``points_lidar``)."""
-    depth = torch.from_numpy(scan.depth_image())
-    intensity = torch.from_numpy(relative_intensity(scan))
+    depth, intensity = scan.depth_and_intensity_images()
+    relative = torch.from_numpy(relative_intensity(scan, intensity))
     edges, _ = lidar_edges(scan, points_lidar, T_cam_lidar, K, rings=rings)
-    return lidar_input(depth, intensity, torch.from_numpy(edges), near_m).numpy()
+    return lidar_input(torch.from_numpy(depth), relative, torch.from_numpy(edges), near_m).numpy()
 
 
-def relative_intensity(scan: ProjectedScan, quantile: float = 0.99) -> np.ndarray:
-    """``(H, W)`` float32: each pixel's intensity over the visible points' ``quantile``, in [0, 1].
+def relative_intensity(
+    scan: ProjectedScan, intensity_image: np.ndarray | None = None, quantile: float = 0.99
+) -> np.ndarray:
+    """``(H, W)`` float32: each pixel's intensity over the visible points' ``quantile``, in [0, 1]
+    (``intensity_image``: the scan's :meth:`~calib.projection.ProjectedScan.intensity_image`
+    where already drawn).
 
     Scanners report intensity on their own scales (KITTI's Velodyne 0–1, nuScenes and a Pandar64
     0–255): clipped to [0, 1] as it was, a 0–255 scan read 1 everywhere, and a matcher trained on
@@ -57,7 +68,8 @@ def relative_intensity(scan: ProjectedScan, quantile: float = 0.99) -> np.ndarra
     if len(scan.intensity) == 0:
         return np.zeros(scan.image_size, np.float32)
     scale = max(float(np.quantile(scan.intensity, quantile)), 1e-6)
-    return np.clip(scan.intensity_image() / scale, 0.0, 1.0).astype(np.float32)
+    image = scan.intensity_image() if intensity_image is None else intensity_image
+    return np.clip(image / scale, 0.0, 1.0).astype(np.float32)
 
 
 class FlowMatcher:
@@ -75,6 +87,10 @@ class FlowMatcher:
 
     def __init__(self, model: str | Path = SHIPPED_FLOW_MODEL, threads: int = 0) -> None:
         self.path = Path(model)
+        # each scan's ring profile, measured once however often it is matched (keyed by its exact
+        # points: moved to another time offset it is another scan), the last RINGS_KEPT
+        self._rings: OrderedDict[bytes, RingProfile] = OrderedDict()
+        self._lock = threading.Lock()  # frames are matched from several threads
         self.session, self.contract = open_model(self.path, "flow", threads)
         self.near_m = float(self.contract.extra["near_m"])
         self.focal_px = float(self.contract.extra["working_focal_px"])
@@ -91,11 +107,26 @@ class FlowMatcher:
         (flow,) = self.session.run(None, feeds)
         return flow[0]
 
+    def rings(self, points_lidar: np.ndarray) -> RingProfile:
+        """The scan's :func:`~calib.features.ring_spacing_profile`, measured once per scan."""
+        key = hashlib.blake2b(np.ascontiguousarray(points_lidar).tobytes(), digest_size=16).digest()
+        with self._lock:
+            if key in self._rings:
+                self._rings.move_to_end(key)
+                return self._rings[key]
+        rings = ring_spacing_profile(points_lidar)
+        with self._lock:
+            self._rings[key] = rings
+            while len(self._rings) > RINGS_KEPT:
+                self._rings.popitem(last=False)
+        return rings
+
     def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
         """Correspondences of every visible point of ``frame`` under ``T_cam_lidar (4, 4)``."""
         view = working_view(frame, self.focal_px)
         scan = project_scan(frame.points, T_cam_lidar, view.K, view.image.shape[:2], VISIBILITY)
-        flow = self.dense_flow(view.image, lidar_image(scan, frame.points, T_cam_lidar, view.K, self.near_m))
+        lidar = lidar_image(scan, frame.points, T_cam_lidar, view.K, self.near_m, self.rings(frame.points))
+        flow = self.dense_flow(view.image, lidar)
         r, c = np.rint(scan.uv[:, 1]).astype(int), np.rint(scan.uv[:, 0]).astype(int)
         uv = view.to_frame(scan.uv)
         return Correspondences(

@@ -122,3 +122,6 @@ def test_projected_scan_images(frames):
     assert (depth_img > 0).sum() <= len(proj.index)
     assert np.all(depth_img[depth_img > 0] >= proj.depth.min() - 1e-5)
     assert inten_img.shape == f.image_size
+    both = proj.depth_and_intensity_images()  # one z-buffer, the same pixels win
+    np.testing.assert_array_equal(both[0], depth_img)
+    np.testing.assert_array_equal(both[1], inten_img)

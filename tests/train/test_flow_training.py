@@ -7,12 +7,20 @@ import torch
 
 from calib.data import open_dataset
 from calib.errors import DataError
+from calib.features import ring_spacing_profile
 from calib.geometry import perturb
+from calib.match.correspondences import working_view
 from calib.match.edge_matcher import EdgeMatcherConfig
 from calib.projection import project_scan
 from export.onnx_export import export_onnx
 from supportnet.nets.flow_net import image_orientation
-from supportnet.runtime.flow_matcher import SHIPPED_FLOW_MODEL, FlowMatcher, relative_intensity
+from supportnet.runtime.flow_matcher import (
+    SHIPPED_FLOW_MODEL,
+    VISIBILITY,
+    FlowMatcher,
+    lidar_image,
+    relative_intensity,
+)
 from supportnet.runtime.matcher_factory import build_matcher
 from train.fit import run_train_flow
 from train.flow_data import (
@@ -173,6 +181,37 @@ def test_train_flow_fast_dev_run_exports_and_matches(tiny, tmp_path):
     assert len(corr) > 1000 and corr.image_size == frame.image_size
     assert np.all(np.isfinite(corr.residual))
     assert (corr.uv >= -0.5).all() and (corr.uv[:, 0] <= frame.image_size[1] - 0.5).all()
+
+
+def test_flow_matcher_measures_a_scans_rings_once_and_matches_as_without(tiny, monkeypatch):
+    """Matched again (another extrinsic, the same points) a scan's ring profile is not measured
+    again, and the LiDAR image equals the one drawn with the profile measured afresh; moved
+    points (another time offset) are another scan."""
+    import supportnet.runtime.flow_matcher as flow_matcher
+
+    root, _ = tiny
+    with open_dataset(root / "urban", sequence="01") as seq:
+        frame = seq[0]
+    measured = []
+    monkeypatch.setattr(
+        flow_matcher,
+        "ring_spacing_profile",
+        lambda points: measured.append(len(points)) or ring_spacing_profile(points),
+    )
+    matcher = FlowMatcher()
+    T = frame.calibration.T_cam_lidar
+    first = matcher.match(frame, T)
+    again = matcher.match(frame, perturb(T, 5.0, 1.0, torch.Generator().manual_seed(0)))
+    assert len(measured) == 1 and len(first) > 0 and len(again) > 0
+    moved = frame.points.copy()
+    moved[:, 0] += 0.01
+    matcher.rings(moved)
+    assert len(measured) == 2
+    view = working_view(frame, matcher.focal_px)
+    scan = project_scan(frame.points, T, view.K, view.image.shape[:2], VISIBILITY)
+    cached = lidar_image(scan, frame.points, T, view.K, matcher.near_m, matcher.rings(frame.points))
+    np.testing.assert_array_equal(cached, lidar_image(scan, frame.points, T, view.K, matcher.near_m))
+    assert len(measured) == 2
 
 
 def test_flow_matcher_refuses_other_files(tmp_path):
