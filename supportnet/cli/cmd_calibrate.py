@@ -36,7 +36,7 @@ from calib.projection import project_scan
 from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
 from calib.support.map_files import check_maps_fingerprint
-from calib.verify import CheckResult, check_extrinsic
+from calib.verify import CheckResult, check_extrinsic, inverse_hint
 from supportnet.cli.cmd_check import check_line
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
@@ -118,7 +118,8 @@ def _markdown(result: dict) -> str:
     lines = [
         f"# supportnet calibrate: {result['data']} {result['sequence'] or ''}".rstrip(),
         "",
-        f"{result['runs_requested']} runs from `--init {result['init']}`, seed {result['seed']}, "
+        f"{result['runs_requested']} run{'s' if result['runs_requested'] != 1 else ''} from "
+        f"`--init {result['init']}`, seed {result['seed']}, "
         f"{result['frames']} frames, up to {result['config']['passes']} passes.",
         "",
         "| support | translation cm mean | median | std | rotation ° mean | median | std |",
@@ -139,7 +140,11 @@ def _markdown(result: dict) -> str:
             f"and in rotation in {p['rotation_wins']} of {p['runs']}."
         )
     if result["check"] is not None:
-        lines += ["", f"Check of the answer (no ground truth): {_check_line(result['check'])}"]
+        lines += [
+            "",
+            f"Check of the answer ({result['support']}, run 1; no ground truth): "
+            + _check_line(result["check"], result["init"]),
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -157,6 +162,8 @@ def _check_summary(result: CheckResult) -> dict:
         "peak_share",
         "peak_shell_deg",
         "detectable_error",
+        "search_at_bound",
+        "inverse_hint",
         "suggested_correction",
         "suggested_T_cam_lidar",
         "runtime_s",
@@ -164,10 +171,13 @@ def _check_summary(result: CheckResult) -> dict:
     return {key: full[key] for key in keep}
 
 
-def _check_line(check: dict) -> str:
+def _check_line(check: dict, init: str) -> str:
+    """:func:`check_line` of the answer's check, with what to try when it is not good (``init``:
+    the ``--init`` the answer came from)."""
     line = check_line(check)
     if check["verdict"] != "good":
-        line += ". This answer is likely wrong: calibrate again from another start (or --init stage1)"
+        other = "another start" if init == "stage1" else "another start (or --init stage1)"
+        line += f". This answer is likely wrong: calibrate again from {other}"
     return line
 
 
@@ -229,6 +239,8 @@ def run_calibrate(
                         )
                     }
                 )
+        if init_kind == "file" and (hint := inverse_hint([seq[len(seq) // 2]], np.asarray(init_arg))):
+            console.print(f"The initial extrinsic: {hint}", markup=False, highlight=False, soft_wrap=True)
         motions: SequenceMotions | str = "time_offset.mode: off"
         if config.time_offset.mode != "off":  # the LiDAR's motion around the used frames, once for all runs
             motions = SequenceMotions(seq, config.time_offset.neighbours, config.time_offset.deskew_rounds)

@@ -87,14 +87,19 @@ def confirms(detectable: dict) -> bool:
 def check_line(check: dict) -> str:
     """One line of a check's answer, from :meth:`CheckResult.to_dict` (or a dict with its
     ``verdict``, ``suggested_correction``, ``significance``, ``peak_share``, ``peak_shell_deg``
-    and ``detectable_error``); a ``good`` on data that cannot confirm it says so."""
+    and ``detectable_error``; ``search_at_bound`` and ``inverse_hint`` where present); a ``good``
+    on data that cannot confirm it says so."""
     c, d = check["suggested_correction"], check["detectable_error"]
+    bound = " (the search's bound: the error may be larger)" if check.get("search_at_bound") else ""
     line = (
-        f"{check['verdict']}: best fit nearby {c['rotation_deg']:.2f}° / {c['translation_cm']:.1f} cm away "
+        f"{check['verdict']}: best fit nearby {c['rotation_deg']:.2f}° / {c['translation_cm']:.1f} cm "
+        f"away{bound} "
         f"(significance {check['significance']['joint']:.1f}), {check['peak_share']:.0%} of its "
         f"neighbours {check['peak_shell_deg']:g}° away align better; smallest error this data shows "
         f"{_fmt(d['rotation_deg'], '°', 2)} / {_fmt(d['translation_cm'], 'cm', 1)}"
     )
+    if check.get("inverse_hint"):
+        line += f"; {check['inverse_hint']}"
     if check["verdict"] == "good" and not confirms(d):
         line += (
             ", so it cannot confirm the extrinsic more finely: an error below that checks good "

@@ -19,6 +19,7 @@ from calib.verify import (
     CHECK_SCHEMA_VERSION,
     CheckConfig,
     check_extrinsic,
+    inverse_hint,
 )
 
 
@@ -133,6 +134,23 @@ def test_refusals(small_urban):
     empty = [Frame(small_urban[0].image, small_urban[0].points[:10], small_urban[0].calibration)]
     with pytest.raises(NumericalError, match="too few contour samples"):
         check_extrinsic(empty, small_urban[0].calibration.T_cam_lidar)
+
+
+def test_the_inverse_given_for_the_extrinsic_is_named(small_urban):
+    """``T_lidar_cam`` given where ``T_cam_lidar`` belongs (the convention mistake): not good, and
+    the result says its inverse aligns far better; the reference itself gets no such line; an
+    extrinsic that puts no point into the image is named as the cause, not the data."""
+    T = small_urban[0].calibration.T_cam_lidar
+    assert inverse_hint(small_urban, T) is None
+    inverted = check_extrinsic(small_urban, np.linalg.inv(T))
+    assert inverted.verdict != "good"
+    assert inverted.inverse_hint is not None and "T_lidar_cam" in inverted.inverse_hint
+    assert inverted.to_dict()["inverse_hint"] == inverted.inverse_hint
+    assert check_extrinsic(small_urban, T).inverse_hint is None
+    aside = T.copy()
+    aside[0, 3] += 1000.0  # the camera a kilometre to the side: no point in its image
+    with pytest.raises(DataError, match=r"puts 0\.00% of the scans' points into the image"):
+        check_extrinsic(small_urban, aside)
 
 
 @pytest.mark.realdata

@@ -143,7 +143,10 @@ def test_the_answer_is_checked_and_a_wrong_one_is_flagged(still_vineyard, tmp_pa
     result.json; ``check=False`` leaves it out."""
     good = run_calibrate(still_vineyard, "00", "uniform", "perturb:10,2", tmp_path / "good", FAST)
     assert good["check"]["verdict"] == "good"
-    assert "Check of the answer (no ground truth): good" in (tmp_path / "good" / "summary.md").read_text()
+    assert (
+        "Check of the answer (uniform, run 1; no ground truth): good"
+        in (tmp_path / "good" / "summary.md").read_text()
+    )
 
     def stuck(self, frames, T_init, **kwargs):
         T_init = np.asarray(T_init)
@@ -184,9 +187,11 @@ def test_a_good_check_on_frames_that_show_only_large_errors_says_it_cannot_confi
         }
 
     unconfirmed = "cannot confirm the extrinsic more finely"
-    assert unconfirmed in _check_line(check("good", 2.0, 20.0))
-    assert unconfirmed in _check_line(check("good", 0.72, 28.6))
-    assert unconfirmed in _check_line(check("good", None, 10.0))
-    assert unconfirmed not in _check_line(check("good", 0.72, 10.0))
-    bad = _check_line(check("bad", 2.0, 20.0))
-    assert "likely wrong" in bad and unconfirmed not in bad
+    assert unconfirmed in _check_line(check("good", 2.0, 20.0), "perturb:10,2")
+    assert unconfirmed in _check_line(check("good", 0.72, 28.6), "perturb:10,2")
+    assert unconfirmed in _check_line(check("good", None, 10.0), "perturb:10,2")
+    assert unconfirmed not in _check_line(check("good", 0.72, 10.0), "perturb:10,2")
+    bad = _check_line(check("bad", 2.0, 20.0), "perturb:10,2")
+    assert "likely wrong" in bad and unconfirmed not in bad and "--init stage1" in bad
+    after_stage1 = _check_line(check("bad", 2.0, 20.0), "stage1")  # no advice to do what was done
+    assert "likely wrong" in after_stage1 and "--init stage1" not in after_stage1
