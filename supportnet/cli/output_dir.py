@@ -42,6 +42,7 @@ from rich.progress import (
     Progress,
     ProgressColumn,
     Task,
+    TaskID,
     TextColumn,
     TimeRemainingColumn,
 )
@@ -494,8 +495,38 @@ class _Stage(ProgressColumn):
         return Text(str(task.fields.get("stage", "")), style="dim")
 
 
+class _LineProgress(Progress):
+    """Off a terminal (a log file, CI) rich draws no bar, so a long command would print nothing for
+    minutes: there each new stage is a line ``label: stage``, and the count ``label: done/total`` a
+    line at most every :data:`LINE_EVERY_S` seconds and at the end."""
+
+    def __init__(self, label: str, *columns: ProgressColumn, console: Console) -> None:
+        super().__init__(*columns, console=console, transient=True)
+        self._label, self._said = label, -math.inf
+
+    def update(self, task_id: TaskID, **kwargs: object) -> None:
+        super().update(task_id, **kwargs)
+        if "stage" in kwargs:
+            self.console.print(f"{self._label}: {kwargs['stage']}", markup=False, highlight=False)
+
+    def advance(self, task_id: TaskID, advance: float = 1) -> None:
+        super().advance(task_id, advance)
+        task = self._tasks[task_id]
+        if task.finished or time.monotonic() - self._said >= LINE_EVERY_S:
+            self._said = time.monotonic()
+            total = f"/{task.total:g}" if task.total is not None else ""
+            self.console.print(f"{self._label}: {task.completed:g}{total}", markup=False, highlight=False)
+
+
+LINE_EVERY_S = 10.0
+"""How often a progress count is a line off a terminal (:class:`_LineProgress`)."""
+
+
 def progress_bar(label: str, console: Console) -> Progress:
     """A transient bar ``label ━━━ done/total time-left stage`` on ``console`` (stderr for
-    commands); ``progress.update(task, stage=...)`` says what the current item is doing."""
+    commands); ``progress.update(task, stage=...)`` says what the current item is doing. Off a
+    terminal, lines instead (:class:`_LineProgress`)."""
     columns = (TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), _Stage())
+    if not console.is_terminal:
+        return _LineProgress(label, *columns, console=console)
     return Progress(*columns, console=console, transient=True)
