@@ -11,6 +11,7 @@ is one the data could not confirm, so a script stops to look at it); 2 bad input
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -167,6 +168,32 @@ def _markdown(output: dict) -> str:
     return "\n".join(lines) + ".\n"
 
 
+def _calibrated_elsewhere(
+    extrinsic: Path, data: Path, sequence: str | None, camera: str | None
+) -> str | None:
+    """A note where ``extrinsic`` is a ``result.json`` of ``calibrate`` on other data (its ``data``,
+    ``sequence`` and ``camera``, paths resolved from the current folder) than the check reads."""
+    try:
+        written = json.loads(Path(extrinsic).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(written, dict) or "data" not in written:
+        return None
+
+    def where(path: str | Path, seq: object, cam: object) -> str:
+        return (
+            f"`{Path(path).resolve()}`"
+            + (f" sequence {seq}" if seq else "")
+            + (f" camera {cam}" if cam else "")
+        )
+
+    calibrated = where(written["data"], written.get("sequence"), written.get("camera"))
+    checked = where(data, sequence, camera)
+    if calibrated == checked:
+        return None
+    return f"Note: {extrinsic} was calibrated on {calibrated}; this check reads {checked}."
+
+
 def run_check(
     data: Path,
     sequence: str | None,
@@ -204,6 +231,8 @@ def run_check(
         (tmp / "check.md").write_text(_markdown(output))
         (tmp / "config.yaml").write_text(resolved_config(config))
         write_image(tmp / "overlay.png", _overlay(frames[0], result))
+    if (other := _calibrated_elsewhere(extrinsic, data, sequence, camera)) is not None:
+        console.print(other, markup=False, highlight=False, soft_wrap=True)
     console.print(
         f"{check_line(output)}; {len(frames)} frame(s) in {result.runtime_s:.1f} s",
         markup=False,

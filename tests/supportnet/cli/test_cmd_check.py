@@ -116,3 +116,27 @@ def test_refuses_to_overwrite_without_the_flag(world, tmp_path):
     assert run_cli(*args).returncode == 0
     assert run_cli(*args).returncode == 2  # exists now
     assert run_cli(*args, "--overwrite").returncode == 0
+
+
+def test_a_result_calibrated_on_other_data_is_noted(world, tmp_path):
+    """A ``result.json`` of ``calibrate`` on another dataset or sequence gets a note naming both;
+    one of the same data, none."""
+    from rich.console import Console
+
+    from supportnet.cli.cmd_check import run_check
+
+    data, _ = world
+    with open_dataset(data, sequence="00") as seq:
+        T = seq.calibration.T_cam_lidar
+    for name, written, noted in (
+        ("same", {"data": str(data), "sequence": "00", "camera": None}, False),
+        ("other", {"data": str(tmp_path / "elsewhere"), "sequence": "00", "camera": None}, True),
+        ("sequence", {"data": str(data), "sequence": "07", "camera": None}, True),
+    ):
+        (tmp_path / f"{name}.json").write_text(json.dumps({"T_cam_lidar": T.tolist(), **written}))
+        console = Console(record=True, width=300)
+        run_check(data, "00", tmp_path / f"{name}.json", tmp_path / f"out_{name}", console=console)
+        text = console.export_text()
+        assert ("was calibrated on" in text) == noted, name
+        if noted:
+            assert f"this check reads `{data.resolve()}` sequence 00" in text
