@@ -163,14 +163,16 @@ def run_init_calib(
         console.print(f"weak: {weak}", markup=False, highlight=False, soft_wrap=True)
     if result.stamp_offset is not None:
         lag = result.stamp_offset
+        stamps = 1e3 * float(np.median(result.camera_times - result.lidar_times))
         told = (
             "not determined (straight drive)"
             if result.time_offset_s is None
-            else f"{1e3 * result.time_offset_s:.1f} ms"
+            else f"{1e3 * result.time_offset_s:.1f} ± {1e3 * lag.std_s:.1f} ms"
         )
         console.print(
-            f"time offset from the rotation angles: {told}; camera stamps lag the LiDAR's by "
-            f"{1e3 * lag.offset_s:.1f} ± {1e3 * lag.std_s:.1f} ms over {lag.pairs} motions",
+            f"time offset δt (camera exposure minus LiDAR stamp) from the rotation angles: {told} "
+            f"(the stamps differ by {stamps:.1f} ms, less the camera's lag behind them, "
+            f"{1e3 * lag.offset_s:.1f} ms over {lag.pairs} motions; Stage 4 refines δt)",
             markup=False,
             highlight=False,
             soft_wrap=True,
