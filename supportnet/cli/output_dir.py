@@ -497,29 +497,35 @@ class _Stage(ProgressColumn):
 
 class _LineProgress(Progress):
     """Off a terminal (a log file, CI) rich draws no bar, so a long command would print nothing for
-    minutes: there each new stage is a line ``label: stage``, and the count ``label: done/total`` a
-    line at most every :data:`LINE_EVERY_S` seconds and at the end."""
+    minutes: there the current stage and count are a line ``label: done/total, stage`` at most
+    every :data:`LINE_EVERY_S` seconds, the first that long after the start (a user mistake found
+    at once still ends in its one line), and the count once more at the end."""
 
     def __init__(self, label: str, *columns: ProgressColumn, console: Console) -> None:
         super().__init__(*columns, console=console, transient=True)
-        self._label, self._said = label, -math.inf
+        self._label, self._said = label, time.monotonic()
+
+    def _say(self, task_id: TaskID, finished: bool = False) -> None:
+        if not finished and time.monotonic() - self._said < LINE_EVERY_S:
+            return
+        self._said = time.monotonic()
+        task = self._tasks[task_id]
+        total = f"/{task.total:g}" if task.total is not None else ""
+        stage = task.fields.get("stage")
+        line = f"{self._label}: {task.completed:g}{total}" + (f", {stage}" if stage and not finished else "")
+        self.console.print(line, markup=False, highlight=False)
 
     def update(self, task_id: TaskID, **kwargs: object) -> None:
         super().update(task_id, **kwargs)
-        if "stage" in kwargs:
-            self.console.print(f"{self._label}: {kwargs['stage']}", markup=False, highlight=False)
+        self._say(task_id)
 
     def advance(self, task_id: TaskID, advance: float = 1) -> None:
         super().advance(task_id, advance)
-        task = self._tasks[task_id]
-        if task.finished or time.monotonic() - self._said >= LINE_EVERY_S:
-            self._said = time.monotonic()
-            total = f"/{task.total:g}" if task.total is not None else ""
-            self.console.print(f"{self._label}: {task.completed:g}{total}", markup=False, highlight=False)
+        self._say(task_id, self._tasks[task_id].finished)
 
 
 LINE_EVERY_S = 10.0
-"""How often a progress count is a line off a terminal (:class:`_LineProgress`)."""
+"""How often the progress is a line off a terminal (:class:`_LineProgress`)."""
 
 
 def progress_bar(label: str, console: Console) -> Progress:

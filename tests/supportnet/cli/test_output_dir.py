@@ -442,26 +442,31 @@ def test_json_is_strict_nan_and_infinities_become_null(tmp_path):
 
 
 def test_off_a_terminal_progress_is_lines(monkeypatch):
-    """A log file gets each stage as a line and the count at most every LINE_EVERY_S and at the
-    end (rich draws no bar there); a terminal gets the bar and no such lines."""
+    """A log file gets the count and stage as a line at most every LINE_EVERY_S (none in the first
+    LINE_EVERY_S: a mistake found at once stays one line) and the count at the end; a terminal
+    gets the bar and no such lines."""
     import io
 
     from rich.console import Console
 
     from supportnet.cli.output_dir import progress_bar
 
-    log = io.StringIO()
-    with progress_bar("calibrate", Console(file=log, width=120)) as progress:
-        task = progress.add_task("calibrate", total=3)
-        progress.update(task, stage="run 1: probe done (2 s)")
-        for _ in range(3):
-            progress.advance(task)
-    lines = [line for line in log.getvalue().splitlines() if line]
-    assert "calibrate: run 1: probe done (2 s)" in lines
-    assert lines.count("calibrate: 1/3") == 1 and lines[-1] == "calibrate: 3/3"  # 2/3 within 10 s
-    screen = io.StringIO()
-    with progress_bar("calibrate", Console(file=screen, width=120, force_terminal=True)) as progress:
-        task = progress.add_task("calibrate", total=1)
-        progress.update(task, stage="probe")
-        progress.advance(task)
-    assert "calibrate: probe" not in screen.getvalue()
+    def run(console: Console) -> list[str]:
+        with progress_bar("calibrate", console) as progress:
+            task = progress.add_task("calibrate", total=3)
+            progress.update(task, stage="run 1: probe done (2 s)")
+            for _ in range(3):
+                progress.advance(task)
+        return [line for line in console.file.getvalue().splitlines() if line]
+
+    assert run(Console(file=io.StringIO(), width=120)) == ["calibrate: 3/3"]  # all within 10 s
+    monkeypatch.setattr(output_dir, "LINE_EVERY_S", 0.0)
+    lines = run(Console(file=io.StringIO(), width=120))
+    assert lines == [
+        "calibrate: 0/3, run 1: probe done (2 s)",
+        "calibrate: 1/3, run 1: probe done (2 s)",
+        "calibrate: 2/3, run 1: probe done (2 s)",
+        "calibrate: 3/3",
+    ]
+    screen = run(Console(file=io.StringIO(), width=120, force_terminal=True))
+    assert not any(line.startswith("calibrate: 1/3") for line in screen)
