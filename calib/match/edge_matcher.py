@@ -16,7 +16,7 @@ import functools
 import hashlib
 import threading
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from typing import Literal, TypeVar
 
@@ -43,6 +43,7 @@ __all__ = [
     "image_edges",
     "lidar_edges",
     "lidar_field",
+    "recall",
 ]
 
 
@@ -777,6 +778,23 @@ def _rigid_motion(before: np.ndarray, after: np.ndarray) -> np.ndarray | None:
     return motion
 
 
+def recall(
+    cache: OrderedDict, key: Hashable, make: Callable[[], Value], lock: threading.Lock, size: int
+) -> Value:
+    """``cache[key]``, made (outside ``lock``) and remembered when missing; the ``size`` last used
+    are kept (what matchers compute once per scan or image, from several threads)."""
+    with lock:
+        if key in cache:
+            cache.move_to_end(key)
+            return cache[key]
+    value = make()
+    with lock:
+        cache[key] = value
+        if len(cache) > size:
+            cache.popitem(last=False)
+    return value
+
+
 class EdgeMatcher:
     """Training-free cross-modal matcher (see the module docstring)."""
 
@@ -796,17 +814,8 @@ class EdgeMatcher:
         self._lock = threading.Lock()  # frames are matched from several threads (match_frames)
 
     def _recall(self, cache: OrderedDict, key: tuple, make: Callable[[], Value]) -> Value:
-        """``cache[key]``, made (outside the lock) and remembered when missing."""
-        with self._lock:
-            if key in cache:
-                cache.move_to_end(key)
-                return cache[key]
-        value = make()
-        with self._lock:
-            cache[key] = value
-            if len(cache) > self._cache_size:
-                cache.popitem(last=False)
-        return value
+        """:func:`recall` in this matcher's caches."""
+        return recall(cache, key, make, self._lock, self._cache_size)
 
     def scan_features(self, points_lidar: np.ndarray) -> ScanFeatures:
         """:meth:`ScanFeatures.of` the scan ``(N, 3+)``, computed once per scan."""

@@ -20,7 +20,7 @@ from calib.data.types import Frame
 from calib.errors import DataError
 from calib.features import RingProfile, ring_spacing_profile
 from calib.match.correspondences import Correspondences, working_view
-from calib.match.edge_matcher import lidar_edges
+from calib.match.edge_matcher import lidar_edges, recall
 from calib.projection import ProjectedScan, Visibility, project_scan
 from supportnet.nets.flow_net import LIDAR_CHANNELS, lidar_input
 from supportnet.runtime.support_predictor import open_model
@@ -110,16 +110,7 @@ class FlowMatcher:
     def rings(self, points_lidar: np.ndarray) -> RingProfile:
         """The scan's :func:`~calib.features.ring_spacing_profile`, measured once per scan."""
         key = hashlib.blake2b(np.ascontiguousarray(points_lidar).tobytes(), digest_size=16).digest()
-        with self._lock:
-            if key in self._rings:
-                self._rings.move_to_end(key)
-                return self._rings[key]
-        rings = ring_spacing_profile(points_lidar)
-        with self._lock:
-            self._rings[key] = rings
-            while len(self._rings) > RINGS_KEPT:
-                self._rings.popitem(last=False)
-        return rings
+        return recall(self._rings, key, lambda: ring_spacing_profile(points_lidar), self._lock, RINGS_KEPT)
 
     def match(self, frame: Frame, T_cam_lidar: np.ndarray) -> Correspondences:
         """Correspondences of every visible point of ``frame`` under ``T_cam_lidar (4, 4)``."""
