@@ -495,15 +495,19 @@ def _alignment(frames: FrameList[Frame], T_cam_lidar: np.ndarray, config: CheckC
 
 
 def inverse_hint(
-    frames: FrameList[Frame], T_cam_lidar: np.ndarray, config: CheckConfig | None = None
+    frames: FrameList[Frame],
+    T_cam_lidar: np.ndarray,
+    config: CheckConfig | None = None,
+    own: float | None = None,
 ) -> str | None:
     """A line for the commonest convention mistake, ``T_lidar_cam`` given for ``T_cam_lidar``:
     where the inverse of ``T_cam_lidar (4, 4)`` aligns the scans' contours with the image edges
     :data:`INVERSE_RATIO` times as well as it does itself, else ``None``. (On the real fixtures a
     reference scores 1.2-3x its inverse, or its inverse sees no contour; a start 10° / 50 cm off
-    scores 0.6-1.5x its inverse.)"""
+    scores 0.6-1.5x its inverse.) ``own``: the score of ``T_cam_lidar`` itself where already known
+    (a check has it)."""
     config = config if config is not None else CheckConfig()
-    own = _alignment(frames, T_cam_lidar, config)
+    own = _alignment(frames, T_cam_lidar, config) if own is None else own
     inverse = _alignment(frames, np.linalg.inv(T_cam_lidar), config)
     if inverse < INVERSE_RATIO * own or inverse == 0.0:
         return None
@@ -541,7 +545,7 @@ def _check(
         score = ContourScore(frames, T_np, config.contours, seed)
     except NumericalError as error:  # few contours in view: say so where the extrinsic is the cause
         share = view_share(frames, T_np)
-        hint = inverse_hint(frames, T_np, config)
+        hint = inverse_hint(frames, T_np, config, own=0.0)  # too few contours under T: it aligns none
         scans = sum(len(f.points) for f in frames) >= 100 * config.min_samples  # not an empty scan's fault
         if hint is not None or (share < MIN_VIEW_SHARE and scans):
             found = (
@@ -589,17 +593,17 @@ def _check(
         ]
     if at_bound:
         reasons.append("the search reached its bound: the error may be larger than the suggested correction")
-    hint = inverse_hint(frames, T_np, config) if verdict != "good" else None
+    sigma = score.sigma_px(config.eval_sigma_deg)
+    both = torch.stack([T, T_best])
+    totals = score.score(both, sigma)
+    per_frame = score.per_frame(both, sigma)
+    hint = inverse_hint(frames, T_np, config, own=float(totals[0])) if verdict != "good" else None
     if hint is not None:
         reasons.append(hint)
     reasons.append(
         f"{peak_share:.0%} of the rotations {config.peak_shell_deg:g}° away from it align better "
         f"({peak_verdict}: bad from {config.peak_bad:.0%}, suspect from {config.peak_suspect:.0%})"
     )
-    sigma = score.sigma_px(config.eval_sigma_deg)
-    both = torch.stack([T, T_best])
-    totals = score.score(both, sigma)
-    per_frame = score.per_frame(both, sigma)
     checks = [
         FrameCheck(
             index=int(f.index),
