@@ -23,7 +23,7 @@ from functools import partial
 import numpy as np
 
 from calib.data.extrinsic_file import rigid_problem
-from calib.data.types import Frame, Sequence
+from calib.data.types import Calibration, Frame, Sequence
 from calib.errors import ConfigError, DataError
 from calib.init.lidar_odometry import SequenceMotions
 from calib.init.motion_init import Stage1Config, Stage1Result, initial_calibration, load_stage1_config
@@ -219,7 +219,10 @@ class Calibrator:
             return [int(i) for i in select_frames(len(seq), count)], {}
         candidates = [int(i) for i in select_frames(len(seq), count * selection.candidates)]
         loaded = {i: seq[i] for i in candidates}
-        informations = [contour_information(f.points, T_init, f.K, f.image_size) for f in loaded.values()]
+        informations = [
+            contour_information(f.points, f.calibration.camera_extrinsic(T_init), f.K, f.image_size)
+            for f in loaded.values()
+        ]
         return [candidates[j] for j in select_informative(informations, count)], loaded
 
     def _level(self, focal: float | None = None, fine: bool = False) -> tuple[Matcher, CalibrateConfig]:
@@ -248,7 +251,7 @@ class Calibrator:
         the matcher's), or the camera's own where that is shorter (images are never resampled up).
         A level (or the probe) from :data:`NEAR_FINEST` of it up would repeat it."""
         finest = self.config.finest_focal_px or self.matcher.config.working_focal_px
-        return min(finest, float(frames[0].K[0, 0]))
+        return min(finest, min(float(f.K[0, 0]) for f in frames))
 
     def _pyramid_focals(self, frames: list[Frame]) -> list[float]:
         """The coarser working focal lengths the edge matcher's passes run at first on ``frames``
@@ -458,7 +461,7 @@ class Calibrator:
         return CalibrationResult(
             T_cam_lidar=passes.T_cam_lidar,
             initial_T_cam_lidar=T_init,
-            reference_T_cam_lidar=frames[0].calibration.T_cam_lidar,
+            reference_T_cam_lidar=unknown_reference(frames[0].calibration),
             covariance=covariance,
             support=self.support.name,
             frame_indices=[int(i) for i in picks],
@@ -629,6 +632,15 @@ def _stamp_offset(frames: list[Frame]) -> float | None:
     if len(offsets) != len(frames) or np.ptp(offsets) > 1e-6:
         return None
     return float(np.mean(offsets))
+
+
+def unknown_reference(calibration: Calibration) -> np.ndarray | None:
+    """The reference of what a calibration of this camera's frames estimates: its
+    ``T_cam_lidar``, or in a rig ``T_rig_lidar = T_cam_rig⁻¹ · T_cam_lidar``."""
+    T = calibration.T_cam_lidar
+    if T is None or calibration.T_cam_rig is None:
+        return T
+    return np.linalg.inv(calibration.T_cam_rig) @ T
 
 
 def _checked_extrinsic(T: np.ndarray, name: str) -> np.ndarray:

@@ -32,6 +32,12 @@ class Calibration:
         initial_T_cam_lidar: ``(4, 4)`` initial guess shipped with the data (custom layout's
             ``initial_extrinsic``), not a reference.
         source: the file(s) these values were read from.
+        T_cam_rig: ``(4, 4)`` where this camera sits in a rig of cameras calibrated together
+            against one LiDAR (their relative poses known, from the rig's own calibration):
+            the unknown is then ``T_rig_lidar``, shared by every camera, and this camera's
+            extrinsic is ``T_cam_rig · T_rig_lidar``. ``None``: a camera on its own (the unknown
+            is its ``T_cam_lidar``). ``T_cam_lidar`` and ``initial_T_cam_lidar`` stay this
+            camera's own.
     """
 
     K: np.ndarray
@@ -40,6 +46,7 @@ class Calibration:
     distortion: np.ndarray | None = None
     initial_T_cam_lidar: np.ndarray | None = None
     source: str = ""
+    T_cam_rig: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         where = self.source or "calibration"
@@ -54,7 +61,7 @@ class Calibration:
                 where, f"intrinsics need fx > 0 and fy > 0, got fx = {K[0, 0]:g}, fy = {K[1, 1]:g}"
             )
         object.__setattr__(self, "K", K)
-        for name in ("T_cam_lidar", "initial_T_cam_lidar"):
+        for name in ("T_cam_lidar", "initial_T_cam_lidar", "T_cam_rig"):
             T = getattr(self, name)
             if T is None:
                 continue
@@ -68,6 +75,15 @@ class Calibration:
             object.__setattr__(self, name, T)
         if self.distortion is not None:
             object.__setattr__(self, "distortion", np.array(self.distortion, dtype=np.float64))
+
+    def camera_extrinsic(self, T: np.ndarray) -> np.ndarray:
+        """This camera's ``T_cam_lidar (..., 4, 4)`` under the unknown ``T (..., 4, 4)``:
+        ``T_cam_rig · T`` in a rig, ``T`` itself for a camera on its own (numpy or torch)."""
+        if self.T_cam_rig is None:
+            return T
+        if isinstance(T, np.ndarray):
+            return self.T_cam_rig @ T
+        return T.new_tensor(self.T_cam_rig) @ T  # a torch tensor: its dtype and device
 
 
 def shift_from_projection(

@@ -94,15 +94,21 @@ class Matcher(Protocol):
 
 
 def match_frames(matcher: Matcher, frames: Sequence[Frame], T_cam_lidar: np.ndarray) -> list[Correspondences]:
-    """``matcher.match`` of every frame under ``T_cam_lidar (4, 4)``, as many at once as the
-    machine has cores (the edge matcher's numpy and OpenCV work runs outside Python's lock). The
-    edge matcher is bound by memory traffic: on this project's 2-core machine two threads match
-    ten full-resolution frames 1.24x as fast as one, and two processes gain the same."""
+    """``matcher.match`` of every frame under ``T_cam_lidar (4, 4)`` (a rig's ``T_rig_lidar``
+    where the frames' cameras sit in one: each frame matched under its camera's extrinsic), as
+    many at once as the machine has cores (the edge matcher's numpy and OpenCV work runs outside
+    Python's lock). The edge matcher is bound by memory traffic: on this project's 2-core machine
+    two threads match ten full-resolution frames 1.24x as fast as one, and two processes gain the
+    same."""
+
+    def one(frame: Frame) -> Correspondences:
+        return matcher.match(frame, frame.calibration.camera_extrinsic(T_cam_lidar))
+
     workers = min(len(frames), os.cpu_count() or 1)
     if workers <= 1:
-        return [matcher.match(frame, T_cam_lidar) for frame in frames]
+        return [one(frame) for frame in frames]
     with ThreadPoolExecutor(workers) as pool:
-        return list(pool.map(lambda frame: matcher.match(frame, T_cam_lidar), frames))
+        return list(pool.map(one, frames))
 
 
 @dataclass(frozen=True)

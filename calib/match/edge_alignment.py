@@ -88,6 +88,7 @@ def contour_points(
     contour = middle / np.linalg.norm(middle, axis=1, keepdims=True) * rng_near
     if view is not None:
         frame, T, margin_deg = view
+        T = frame.calibration.camera_extrinsic(T)
         points_cam = contour @ T[:3, :3].T + T[:3, 3]
         contour = contour[_within_view(points_cam, frame.K, frame.image_size, margin_deg)]
     if len(contour) > limit:
@@ -96,7 +97,9 @@ def contour_points(
 
 
 class EdgeAlignment:
-    """Edge-alignment score of extrinsics over a set of frames sharing one ``K``.
+    """Edge-alignment score of extrinsics over a set of frames (of one camera, or of a rig's
+    cameras: each frame's contours then project through its camera's ``T_cam_rig · T``, and
+    its blur is ``σ`` scaled by its focal length over the first frame's).
 
     Args:
         frames: the frames. max_points: contour points kept per frame. seed: their draw.
@@ -119,8 +122,6 @@ class EdgeAlignment:
             raise DataError("frames", "edge alignment needs at least one frame")
         if kind not in SCORE_KINDS:
             raise DataError("kind", f"edge alignment kind must be one of {SCORE_KINDS}, got {kind!r}")
-        self.K = torch.as_tensor(frames[0].K, dtype=torch.float64)
-        self.size = frames[0].image_size
         rng = np.random.default_rng(seed)
         views = [None if view is None else (f, np.asarray(view[0]), view[1]) for f in frames]
         clouds = [contour_points(f.points, max_points, rng, v) for f, v in zip(frames, views, strict=True)]
@@ -134,8 +135,15 @@ class EdgeAlignment:
         self._homogeneous = torch.cat(
             [self.points, torch.ones(*self.points.shape[:2], 1, dtype=torch.float64)], 2
         ).float()
+        # maps of several sizes (a rig's cameras) share the largest, padded with zeros (outside: 0)
+        self.size = tuple(max(f.image_size[a] for f in frames) for a in (0, 1))
         H, W = self.size
-        self._to_grid = torch.diag(torch.tensor([2 / (W - 1), 2 / (H - 1), 1.0], dtype=torch.float64))
+        to_grid = torch.diag(torch.tensor([2 / (W - 1), 2 / (H - 1), 1.0], dtype=torch.float64))
+        self._project = torch.stack([to_grid @ torch.as_tensor(f.K) for f in frames])  # (F, 3, 3)
+        self._rig = torch.stack(
+            [torch.as_tensor(f.calibration.camera_extrinsic(np.eye(4))) for f in frames]
+        )  # (F, 4, 4) T_cam_rig, the identity for a camera on its own
+        self._blur = [float(f.K[0, 0] / frames[0].K[0, 0]) for f in frames]
         self.edges = [
             edge_strength(f.image) if kind == "magnitude" else image_edges(f.image)[0] for f in frames
         ]
@@ -144,24 +152,26 @@ class EdgeAlignment:
 
     def median_depth(self, T_cam_lidar: torch.Tensor) -> float:
         """Median depth (m) of the contour points in front of the camera under ``T_cam_lidar (4, 4)``."""
-        T = torch.as_tensor(T_cam_lidar, dtype=torch.float64)
-        z = (self.points[self.mask] @ T[:3, :3].T + T[:3, 3])[:, 2]
+        T = self._rig @ torch.as_tensor(T_cam_lidar, dtype=torch.float64)  # (F, 4, 4)
+        z = (self.points @ T[:, :3, :3].mT + T[:, None, :3, 3])[..., 2][self.mask]
         if not bool((z > 0).any()):
             raise DataError("T_cam_lidar", "no contour point lies in front of the camera")
         return float(z[z > 0].median())
 
     def maps(self, sigma_px: float) -> torch.Tensor:
-        """``(F, 1, H, W)`` edge maps blurred by ``σ``, less their blur by ``surround · σ``,
-        renormalised to a peak of 1 (of ``|·|``: both maps can be negative)."""
+        """``(F, 1, H, W)`` edge maps blurred by ``σ`` (at the first frame's focal length),
+        less their blur by ``surround · σ``, renormalised to a peak of 1 (of ``|·|``: both maps
+        can be negative)."""
         key = round(float(sigma_px), 3)
         if key not in self._maps:
-            blurred = []
-            for e in self.edges:
-                b = cv2.GaussianBlur(e, (0, 0), sigma_px) if sigma_px > 0 else e
+            maps = np.zeros((len(self.edges), 1, *self.size), np.float32)
+            for e, scale, out in zip(self.edges, self._blur, maps, strict=True):
+                sigma = sigma_px * scale
+                b = cv2.GaussianBlur(e, (0, 0), sigma) if sigma > 0 else e
                 if self.surround > 0:
-                    b = b - cv2.GaussianBlur(e, (0, 0), self.surround * max(sigma_px, 1.0))
-                blurred.append(b / max(float(np.abs(b).max()), 1e-6))
-            self._maps[key] = torch.from_numpy(np.stack(blurred))[:, None].float()
+                    b = b - cv2.GaussianBlur(e, (0, 0), self.surround * max(sigma, 1.0))
+                out[0, : b.shape[0], : b.shape[1]] = b / max(float(np.abs(b).max()), 1e-6)
+            self._maps[key] = torch.from_numpy(maps)
         return self._maps[key]
 
     def per_frame(self, T_cam_lidar: torch.Tensor, sigma_px: float) -> torch.Tensor:
@@ -173,14 +183,16 @@ class EdgeAlignment:
         maps = self.maps(sigma_px)
         counts = self.mask.sum(1).clamp_min(1).double()
         # pixels in single precision (1e-7 of the image: far below a blur of pixels); the projection
-        # K·[R | t] and grid_sample's scale to [-1, 1] folded into one (3, 4) per extrinsic, and
-        # all of them applied to the homogeneous points in one matrix product, (F, N, 4) · (4, 3c):
-        # a batched product over C of (N, 3) · (3, 3) costs twice the whole score
-        P = (self._to_grid @ self.K @ T[:, :3, :]).float()  # (C, 3, 4)
+        # K·[R | t] (of the frame's camera) and grid_sample's scale to [-1, 1] folded into one
+        # (3, 4) per frame and extrinsic, and all of a frame's applied to its homogeneous points in
+        # one matrix product, (F, N, 4) · (F, 4, 3c): a batched product over C of (N, 3) · (3, 3)
+        # costs twice the whole score
+        P = (self._project[:, None] @ (self._rig[:, None] @ T[None])[..., :3, :]).float()  # (F, C, 3, 4)
         n_frames, n_points = self.mask.shape
         out = []
-        for chunk in P.split(256):
-            uvw = (self._homogeneous @ chunk.reshape(-1, 4).T).view(n_frames, n_points, len(chunk), 3)
+        for chunk in P.split(256, dim=1):
+            c = chunk.shape[1]
+            uvw = torch.bmm(self._homogeneous, chunk.reshape(n_frames, -1, 4).mT).view(n_frames, n_points, c, 3)
             z = uvw[..., 2:]
             grid = (uvw[..., :2] / z.clamp_min(1e-3)).sub_(1.0)  # (F, N, c, 2)
             sampled = F.grid_sample(maps, grid, align_corners=True, padding_mode="zeros")[:, 0]  # (F, N, c)

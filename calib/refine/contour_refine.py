@@ -24,6 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 from scipy.optimize import minimize
 
 from calib.data.types import Frame
+from calib.errors import ConfigError
 from calib.geometry import se3_exp
 from calib.match.contours import ContourConfig, ContourScore
 
@@ -91,7 +92,10 @@ def contour_refine(
 
     Raises:
         NumericalError: the scans show too few contours in the image.
+        ConfigError: the frames are a rig's cameras (this experimental score has one camera).
     """
+    if any(f.calibration.T_cam_rig is not None for f in frames):
+        raise ConfigError("contour.enabled", "the contour score has one camera: turn it off to calibrate a rig")
     config = config if config is not None else ContourRefineConfig()
     T = torch.as_tensor(np.asarray(T_init, np.float64))
     levels = []

@@ -623,7 +623,8 @@ def refine_passes(
     alternatives: Sequence[np.ndarray] = (),
     timing: ScanTiming | None = None,
 ) -> PassesResult:
-    """Refine ``T_init`` over ``frames`` (one shared ``K``) in up to ``config.passes`` passes.
+    """Refine ``T_init`` over ``frames`` (one shared ``K``, or the cameras of one rig: ``T_init``
+    is then ``T_rig_lidar``) in up to ``config.passes`` passes.
 
     Each pass matches every frame under the current estimate, leaves out the frames whose median
     residual is an outlier among the frames, draws each frame's correspondences (SGIS or uniform),
@@ -665,8 +666,16 @@ def refine_passes(
         NumericalError: too few correspondences to fit (from every start, with alternatives).
     """
     K = frames[0].K
-    if any(not np.allclose(f.K, K) for f in frames):
+    rigs = [f.calibration.T_cam_rig for f in frames]
+    in_rig = rigs[0] is not None
+    if any((r is not None) != in_rig for r in rigs):
+        raise DataError("frames", "mix cameras of a rig (T_cam_rig) with cameras on their own")
+    if not in_rig and any(not np.allclose(f.K, K) for f in frames):
         raise DataError("frames", "have different intrinsics and cannot share one refinement")
+    # a rig's cameras each project through their own K and T_cam_rig; its pixel thresholds are
+    # the first camera's
+    Ks = np.stack([f.K for f in frames])
+    rigs = np.stack(rigs) if in_rig else None
     rules = config.outliers
     # the check needs residuals the matcher can still measure: beyond its reach they saturate
     reach_px = config.check_below_px * K[0, 0] / min(K[0, 0], config.edge.working_focal_px)
@@ -691,8 +700,19 @@ def refine_passes(
         return matched, _median_norm(np.concatenate([c.residual for c in matched]))
 
     def fit(points, targets, weights, scans, T: np.ndarray, dt: float | None) -> Refinement:
-        clusters = image_cells(targets, scans, K, config.refine.covariance_cell_deg)
-        solve = partial(refine_extrinsic, points, targets, weights, K, T, config.refine, clusters=clusters)
+        focal = Ks[scans, 0, 0] if in_rig else K[0, 0]
+        clusters = image_cells(targets, scans, focal, config.refine.covariance_cell_deg)
+        solve = partial(
+            refine_extrinsic,
+            points,
+            targets,
+            weights,
+            Ks[scans] if in_rig else K,
+            T,
+            config.refine,
+            clusters=clusters,
+            T_cam_rig=None if rigs is None else rigs[scans],
+        )
         if timing is None:
             return solve()
         result = solve(TimeModel(scans, twists, dt, timing.estimate))
@@ -761,7 +781,7 @@ def refine_passes(
             entry["time_offset_s"] = result.time_offset_s
             entry["time_offset_std_s"] = result.time_offset_std_s  # None: held (not observable)
         if config.settle_px > 0:
-            entry["update_px"] = _update_px(matched, T, result.T_cam_lidar, K, working)
+            entry["update_px"] = _update_px(frames, matched, T, result.T_cam_lidar, working)
         if config.check_on == "common":
             bases[id(entry)] = matched  # what the check compares the matching after it with
         return result, entry
@@ -927,18 +947,29 @@ SETTLE_TIME_S = 1e-4
 
 
 def _update_px(
-    matched: list[Correspondences], T_before: np.ndarray, T_after: np.ndarray, K: np.ndarray, scale: float
+    frames: Sequence[Frame],
+    matched: list[Correspondences],
+    T_before: np.ndarray,
+    T_after: np.ndarray,
+    scale: float,
 ) -> float:
-    """The median image motion (pixels of ``K``, times ``scale``) of a pass from ``T_before`` to
-    ``T_after (4, 4)``, over (at most about 5000 of) the matched points it was fitted to."""
+    """The median image motion (pixels of each frame's camera, times ``scale``) of a pass from
+    ``T_before`` to ``T_after (4, 4)``, over (at most about 5000 of) the matched points it was
+    fitted to."""
     points = np.concatenate([c.points_lidar for c in matched])
-    points = points[:: max(1, len(points) // 5000)]
-    uv = []
-    for T in (T_before, T_after):
-        q = points @ T[:3, :3].T + T[:3, 3]
-        uvw = q @ K.T
-        uv.append(uvw[:, :2] / np.maximum(uvw[:, 2:], 1e-9))
-    return float(np.median(np.linalg.norm(uv[1] - uv[0], axis=1)) * scale) if len(points) else math.inf
+    which = np.concatenate([np.full(len(c), k) for k, c in enumerate(matched)])
+    step = max(1, len(points) // 5000)
+    points, which = points[::step], which[::step]
+    motion = np.empty(len(points))
+    for k, frame in enumerate(frames):
+        mine = which == k
+        uv = []
+        for T in (T_before, T_after):
+            T = frame.calibration.camera_extrinsic(T)
+            uvw = (points[mine] @ T[:3, :3].T + T[:3, 3]) @ frame.K.T
+            uv.append(uvw[:, :2] / np.maximum(uvw[:, 2:], 1e-9))
+        motion[mine] = np.linalg.norm(uv[1] - uv[0], axis=1)
+    return float(np.median(motion) * scale) if len(points) else math.inf
 
 
 def _pooled_fit(
@@ -984,12 +1015,15 @@ def _pooled_fit(
     return result.T_cam_lidar, result.time_offset_s
 
 
-def image_cells(uv: np.ndarray, frame: np.ndarray, K: np.ndarray, cell_deg: float) -> np.ndarray | None:
-    """``(N,)`` an id per image cell of ``cell_deg`` (view angle at ``K``'s focal length) per
-    frame for pixels ``uv (N, 2)`` of frames ``frame (N,)``; ``None`` where ``cell_deg`` is 0."""
+def image_cells(
+    uv: np.ndarray, frame: np.ndarray, focal_px: float | np.ndarray, cell_deg: float
+) -> np.ndarray | None:
+    """``(N,)`` an id per image cell of ``cell_deg`` (view angle at the focal length
+    ``focal_px``, one or ``(N,)`` each pixel's camera's) per frame for pixels ``uv (N, 2)`` of
+    frames ``frame (N,)``; ``None`` where ``cell_deg`` is 0."""
     if cell_deg <= 0:
         return None
-    cell_px = float(K[0, 0]) * math.tan(math.radians(cell_deg))
+    cell_px = np.asarray(focal_px, np.float64).reshape(-1, 1) * math.tan(math.radians(cell_deg))
     cells = np.column_stack([frame, np.floor(uv / cell_px)]).astype(np.int64)
     if len(cells) == 0:  # no correspondences: no cells
         return np.zeros(0, np.int64)

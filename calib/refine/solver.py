@@ -147,11 +147,11 @@ def robust_weight(r2: torch.Tensor, loss: str, scale: float) -> tuple[torch.Tens
 
 def pinhole_jacobian(points_cam: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
     """``∂π(K, q) / ∂q = [[fx/z, s/z, −(fx x + s y)/z²], [0, fy/z, −fy y/z²]]``: ``(*, N, 2, 3)``
-    for ``points_cam q (*, N, 3)`` (``z > 0``) and ``K (3, 3)``."""
+    for ``points_cam q (*, N, 3)`` (``z > 0``) and ``K (3, 3)``, or ``(N, 3, 3)`` one per point."""
     q = torch.as_tensor(points_cam, dtype=torch.float64)
     K = torch.as_tensor(K, dtype=torch.float64)
     x, y, z = q.unbind(-1)
-    fx, s, fy = K[0, 0], K[0, 1], K[1, 1]
+    fx, s, fy = K[..., 0, 0], K[..., 0, 1], K[..., 1, 1]
     zero = torch.zeros_like(z)
     return torch.stack(
         [
@@ -172,9 +172,14 @@ def reprojection_jacobian(points_cam: torch.Tensor, K: torch.Tensor) -> torch.Te
         points_cam: ``(*, N, 3)`` points in the camera frame (``z > 0``). K: ``(3, 3)``.
     """
     q = torch.as_tensor(points_cam, dtype=torch.float64)
-    d_pi = pinhole_jacobian(q, K)  # (*, N, 2, 3)
-    # each row a of ∂π/∂q times [I | −[q]×]: (a, aᵀ(−[q]×)) = (a, q × a)
-    return torch.cat([d_pi, torch.linalg.cross(q[..., None, :].expand_as(d_pi), d_pi)], -1)
+    return _on_twist(pinhole_jacobian(q, K), q)
+
+
+def _on_twist(d_q: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """``∂/∂δ`` at ``δ = 0`` of a function of ``exp(δ) · q``, from its derivative ``d_q (*, N, 2, 3)``
+    at the ``points q (*, N, 3)``: ``∂(exp(δ) q)/∂δ = [I | −[q]×]``, so each row ``a`` of ``d_q``
+    becomes ``(a, aᵀ(−[q]×)) = (a, q × a)``; ``(*, N, 2, 6)``."""
+    return torch.cat([d_q, torch.linalg.cross(points[..., None, :].expand_as(d_q), d_q)], -1)
 
 
 def _at_camera_time(
@@ -229,16 +234,20 @@ def refine_extrinsic(
     config: RefineConfig = RefineConfig(),
     time: TimeModel | None = None,
     clusters: np.ndarray | None = None,
+    T_cam_rig: np.ndarray | None = None,
 ) -> Refinement:
     """Minimise Eq. 4 over ``ΔT`` (and ``δt`` with ``time``) starting at ``T_init``.
 
     Args:
         points_lidar: ``(N, 3)`` points (with ``time``: deskewed to their scan's stamp).
         uv_target: ``(N, 2)`` matched pixels ``ũ_i``. weights: ``(N,)`` non-negative ``s_i``.
-        K: ``(3, 3)``. T_init: ``(4, 4)`` ``T⁰_cam_lidar``. time: the time offset's model.
+        K: ``(3, 3)``, or ``(N, 3, 3)`` each point's camera's. T_init: ``(4, 4)`` ``T⁰_cam_lidar``
+            (a rig's ``T⁰_rig_lidar`` with ``T_cam_rig``). time: the time offset's model.
         clusters: ``(N,)`` int, correspondences whose errors are correlated share an id: the
             result's ``cell_covariance`` is then the cluster-robust sandwich
             (:func:`cluster_covariance`).
+        T_cam_rig: ``(N, 4, 4)`` each point's camera in a rig: the point projects through
+            ``T_cam_rig · T``, and ``T`` (with its covariance) is the rig's ``T_rig_lidar``.
 
     Raises:
         NumericalError: fewer than 6 usable correspondences, points behind the camera at the
@@ -262,6 +271,11 @@ def refine_extrinsic(
     if used < 6:
         raise NumericalError(f"refinement needs at least 6 weighted correspondences, got {used}")
     K = torch.as_tensor(np.asarray(K), dtype=f64)
+    if K.shape not in ((3, 3), (len(p), 3, 3)):
+        raise ValueError(f"expected K (3, 3) or ({len(p)}, 3, 3), got {tuple(K.shape)}")
+    rig = None if T_cam_rig is None else torch.as_tensor(np.asarray(T_cam_rig), dtype=f64)
+    if rig is not None and rig.shape != (len(p), 4, 4):
+        raise ValueError(f"expected T_cam_rig ({len(p)}, 4, 4), got {tuple(rig.shape)}")
     T = torch.as_tensor(np.asarray(T_init), dtype=f64)
     offset = time.offset_s if time is not None else 0.0
     scan = torch.as_tensor(time.scan) if time is not None else None
@@ -276,15 +290,18 @@ def refine_extrinsic(
         """Cost, residuals ``(N, 2)``, IRLS weights ``(N,)`` and a function giving the Jacobian
         ``(N, 2, n_params)`` there (made only for a step that is taken)."""
         points, d_offset = held if held is not None else _at_camera_time(p, time, scan, offset)
-        q = points @ T[:3, :3].T + T[:3, 3]
-        uvw = q @ K.T
+        q_rig = points @ T[:3, :3].T + T[:3, 3]  # the camera's frame, or the rig's
+        q = q_rig if rig is None else torch.einsum("nij,nj->ni", rig[:, :3, :3], q_rig) + rig[:, :3, 3]
+        uvw = q @ K.T if K.ndim == 2 else torch.einsum("nij,nj->ni", K, q)
         r = uvw[:, :2] / uvw[:, 2:3] - target
         rho, w = robust_weight((r * r).sum(1), config.loss, config.loss_scale_px)
 
         def jacobian() -> torch.Tensor:
-            J = reprojection_jacobian(q, K)
-            if n_params == 7:  # ∂π/∂δt = ∂π/∂q · R · ∂p/∂δt
-                J = torch.cat([J, pinhole_jacobian(q, K) @ (d_offset @ T[:3, :3].T)[:, :, None]], -1)
+            d_q = pinhole_jacobian(q, K)  # ∂π/∂q, then by the rig's rotation ∂π/∂q_rig
+            d_q = d_q if rig is None else d_q @ rig[:, :3, :3]
+            J = _on_twist(d_q, q_rig)
+            if n_params == 7:  # ∂π/∂δt = ∂π/∂q_rig · R · ∂p/∂δt
+                J = torch.cat([J, d_q @ (d_offset @ T[:3, :3].T)[:, :, None]], -1)
             return J
 
         if bool((q[:, 2] <= 0).any()):

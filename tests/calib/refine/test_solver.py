@@ -103,10 +103,10 @@ def test_image_cells_split_by_frame_and_by_view_angle():
     K = np.array([[721.5, 0, 600], [0, 721.5, 180], [0, 0, 1]])
     cell = 721.5 * np.tan(np.radians(10.0))  # 127.2 px
     uv = np.array([[0.0, 0], [cell - 1, cell - 1], [cell + 1, 0], [0, cell + 1], [0.0, 0], [-5.0, 0]])
-    ids = image_cells(uv, np.array([0, 0, 0, 0, 1, 0]), K, 10.0)
+    ids = image_cells(uv, np.array([0, 0, 0, 0, 1, 0]), K[0, 0], 10.0)
     assert ids[0] == ids[1]  # one cell
     assert len({ids[0], ids[2], ids[3], ids[4], ids[5]}) == 5  # across, down, another frame, off the image
-    assert image_cells(uv, np.zeros(6, int), K, 0.0) is None
+    assert image_cells(uv, np.zeros(6, int), K[0, 0], 0.0) is None
 
 
 def test_cluster_covariance_of_single_points_is_whites():
