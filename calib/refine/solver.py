@@ -162,24 +162,29 @@ def pinhole_jacobian(points_cam: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
     )
 
 
-def reprojection_jacobian(points_cam: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
-    """``∂π(K, exp(δ) · q) / ∂δ`` at ``δ = 0``: ``(*, N, 2, 6)`` for ``points_cam q (*, N, 3)``.
+def reprojection_jacobian(
+    points: torch.Tensor, K: torch.Tensor, T_cam_rig: torch.Tensor | None = None
+) -> torch.Tensor:
+    """``∂π(K, exp(δ) · q) / ∂δ`` at ``δ = 0``: ``(*, N, 2, 6)`` for ``points q (*, N, 3)`` in the
+    camera frame (``z > 0``); with ``T_cam_rig (N, 4, 4)``, ``∂π(K, T_cam_rig · exp(δ) · q) / ∂δ``
+    for points in a rig's frame (``δ`` a move of the rig).
 
     ``∂(exp(δ) q)/∂δ = [I | −[q]×]`` (translation first, as kornia's ``Se3``), chained with
-    :func:`pinhole_jacobian`: a row ``a`` of ``∂π/∂q`` becomes ``(a, q × a)``.
+    :func:`pinhole_jacobian` (by the rig's rotation first): a row ``a`` of ``∂π/∂q`` becomes
+    ``(a, q × a)``.
 
     Args:
-        points_cam: ``(*, N, 3)`` points in the camera frame (``z > 0``). K: ``(3, 3)``.
+        points: ``(*, N, 3)``. K: ``(3, 3)``, or ``(N, 3, 3)`` each point's camera's.
     """
-    q = torch.as_tensor(points_cam, dtype=torch.float64)
-    return _on_twist(pinhole_jacobian(q, K), q)
-
-
-def _on_twist(d_q: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """``∂/∂δ`` at ``δ = 0`` of a function of ``exp(δ) · q``, from its derivative ``d_q (*, N, 2, 3)``
-    at the ``points q (*, N, 3)``: ``∂(exp(δ) q)/∂δ = [I | −[q]×]``, so each row ``a`` of ``d_q``
-    becomes ``(a, aᵀ(−[q]×)) = (a, q × a)``; ``(*, N, 2, 6)``."""
-    return torch.cat([d_q, torch.linalg.cross(points[..., None, :].expand_as(d_q), d_q)], -1)
+    q = torch.as_tensor(points, dtype=torch.float64)
+    if T_cam_rig is None:
+        d_q = pinhole_jacobian(q, K)  # (*, N, 2, 3)
+    else:
+        R = torch.as_tensor(T_cam_rig, dtype=torch.float64)[..., :3, :3]
+        q_cam = (R @ q[..., None])[..., 0] + torch.as_tensor(T_cam_rig, dtype=torch.float64)[..., :3, 3]
+        d_q = pinhole_jacobian(q_cam, K) @ R
+    # each row a of ∂π/∂q times [I | −[q]×]: (a, aᵀ(−[q]×)) = (a, q × a)
+    return torch.cat([d_q, torch.linalg.cross(q[..., None, :].expand_as(d_q), d_q)], -1)
 
 
 def _at_camera_time(
@@ -297,11 +302,9 @@ def refine_extrinsic(
         rho, w = robust_weight((r * r).sum(1), config.loss, config.loss_scale_px)
 
         def jacobian() -> torch.Tensor:
-            d_q = pinhole_jacobian(q, K)  # ∂π/∂q, then by the rig's rotation ∂π/∂q_rig
-            d_q = d_q if rig is None else d_q @ rig[:, :3, :3]
-            J = _on_twist(d_q, q_rig)
-            if n_params == 7:  # ∂π/∂δt = ∂π/∂q_rig · R · ∂p/∂δt
-                J = torch.cat([J, d_q @ (d_offset @ T[:3, :3].T)[:, :, None]], -1)
+            J = reprojection_jacobian(q_rig, K, rig)
+            if n_params == 7:  # ∂π/∂δt = ∂π/∂q_rig · R · ∂p/∂δt (∂π/∂q_rig: the first 3 columns)
+                J = torch.cat([J, J[..., :3] @ (d_offset @ T[:3, :3].T)[:, :, None]], -1)
             return J
 
         if bool((q[:, 2] <= 0).any()):

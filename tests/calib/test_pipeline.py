@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from calib.errors import ConfigError, DataError
-from calib.geometry import calibration_error, perturb
+from calib.geometry import calibration_error, perturb, se3_exp
 from calib.init.lidar_odometry import SequenceMotions
 from calib.match.correspondences import match_frames
 from calib.match.edge_matcher import EdgeMatcher
@@ -562,3 +562,24 @@ def test_matchings_are_pooled_at_the_finest_level_alone(frames, monkeypatch):
     )
     assert len(pooled) >= 3 and pooled[-1] == 3 and set(pooled[:-1]) == {1}
     assert result.error.translation_cm < 2.5 and result.error.rotation_deg < 0.4
+
+
+def test_a_rig_is_calibrated_through_its_cameras(frames):
+    """Known answer: the frames as cameras of a rig whose frame is turned 90° and moved 1 m from
+    the camera's (``T_cam_rig``): the calibration undoes 10 cm / 2° of ``T_rig_lidar`` as it
+    does of ``T_cam_lidar`` above, each frame matched under ``T_cam_rig · T``; its reference is
+    ``T_rig_lidar``. A rig's camera beside a camera on its own is refused."""
+    T_ref = frames[0].calibration.T_cam_lidar
+    T_rig_lidar = se3_exp(torch.tensor([1.0, 0.2, -0.3, 0.0, 1.5708, 0.1], dtype=torch.float64)).numpy() @ T_ref
+    T_cam_rig = T_ref @ np.linalg.inv(T_rig_lidar)
+    rig = [replace(f, calibration=replace(f.calibration, T_cam_rig=T_cam_rig)) for f in frames]
+    under = match_frames(EdgeMatcher(FAST.edge), rig[:1], T_rig_lidar)[0]
+    alone = EdgeMatcher(FAST.edge).match(frames[0], T_ref)
+    np.testing.assert_allclose(under.uv, alone.uv, atol=1e-6)
+    T_init = perturb(T_rig_lidar, 10.0, 2.0, torch.Generator().manual_seed(0))
+    result = Calibrator(config=FAST).calibrate(rig, T_init)
+    np.testing.assert_allclose(result.reference_T_cam_lidar, T_rig_lidar, atol=1e-9)
+    assert result.initial_error.translation_cm == pytest.approx(10.0)
+    assert result.error.translation_cm < 2.5 and result.error.rotation_deg < 0.4
+    with pytest.raises(DataError, match="rig"):
+        Calibrator(config=FAST).calibrate([rig[0], *frames[1:]], T_init)

@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -160,3 +162,32 @@ def test_median_depth_with_every_point_behind_the_camera_is_refused(small_urban)
     behind[2, 3] -= 1e4  # every point 10 km behind the camera
     with pytest.raises(DataError, match="in front"):
         EdgeAlignment(small_urban).median_depth(torch.as_tensor(behind))
+
+
+def test_a_rigs_frames_score_as_each_camera_alone(small_urban):
+    """Known answer: two frames as cameras of a rig (``T_cam_rig``), the second with a smaller
+    image (cropped: the maps share the larger size, padded with zeros) and a longer focal length
+    (its blur scales with it), score each extrinsic ``T`` of the rig as each frame on its own
+    scores ``T_cam_rig · T``."""
+    T_ref = np.asarray(small_urban[0].calibration.T_cam_lidar)
+    T_rig_lidar = se3_exp(torch.tensor([0.2, -0.1, 0.3, 0.1, 1.2, -0.2], dtype=torch.float64)).numpy() @ T_ref
+    T_cam_rig = T_ref @ np.linalg.inv(T_rig_lidar)
+    zoomed = small_urban[1].calibration.K.copy()
+    zoomed[:2, :2] *= 1.25
+    alone = [
+        small_urban[0],
+        Frame(small_urban[1].image[:150, :500].copy(), small_urban[1].points, replace(small_urban[1].calibration, K=zoomed)),
+    ]
+    rig = [Frame(f.image, f.points, replace(f.calibration, T_cam_rig=T_cam_rig)) for f in alone]
+    moves = se3_exp(torch.tensor([[0, 0, 0, 0, 0, 0], [0.05, 0, -0.1, 0.01, 0.02, 0]], dtype=torch.float64))
+    T = moves @ torch.as_tensor(T_rig_lidar)
+    score = EdgeAlignment(rig, 10_000, kind="magnitude")
+    assert score.size == small_urban[0].image_size
+    for k, frame in enumerate(alone):
+        single = EdgeAlignment([frame], 10_000, kind="magnitude")
+        assert score.contours[k] == single.contours[0]  # every contour point kept: no draw
+        expected = single.per_frame(torch.as_tensor(T_cam_rig) @ T, 3.0 * frame.K[0, 0] / alone[0].K[0, 0])
+        np.testing.assert_allclose(score.per_frame(T, 3.0)[:, k].numpy(), expected[:, 0].numpy(), atol=2e-6)
+    assert score.median_depth(T[0]) == pytest.approx(
+        EdgeAlignment(alone, 10_000).median_depth(torch.as_tensor(T_ref)), rel=1e-6
+    )
