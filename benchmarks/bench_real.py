@@ -60,7 +60,9 @@ from rich.console import Console
 
 from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import check_fixtures, realdata_root
+from calib.data.rig import as_rig
 from calib.geometry import calibration_error, perturb
+from calib.pipeline import unknown_reference
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
 from calib.synth.synth_config import load_synth_config
 from supportnet import Calibrator  # builds the config's matcher, the learned one too
@@ -265,6 +267,7 @@ grid and averaged, and kept while the view turns less than 4 px (``edge.supersam
 ``edge.redraw_px``)."""
 ALL6 = "kitti-raw-0928-all6"
 PJLAB12 = "pjlab-12"
+NUSCENES_RIG = "nuscenes-rig"
 KITTI_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
 ZED_HALF = {"width": 960, "height": 540, "fx": 527.0, "fy": 527.0, "cx": 479.5, "cy": 269.5}
 SYNTH_CAMERAS = {"urban": KITTI_RES, "vineyard": ZED_HALF}
@@ -525,6 +528,14 @@ def real_datasets(work: Path, notes: dict) -> Iterator[Dataset]:
             console.print(f"[red]{notes[name]}[/red]")
         merged = [*a, *b]
         yield Dataset(name, lambda _run, m=merged, T=T_a: (m, T, {}), len(merged))
+    cameras = [loaded[name][0][0] for name in loaded if name.startswith("nuscenes-cam")]
+    rig = as_rig(cameras)
+    notes[NUSCENES_RIG] = (
+        f"the one nuScenes sweep seen by its {len(rig)} cameras as one rig: each camera's T_cam_rig "
+        "from the references' relative poses, the rig's frame CAM_FRONT's, so a run's error is each "
+        "camera's; single-frame success (one sweep)"
+    )
+    yield Dataset(NUSCENES_RIG, lambda _run, r=rig: (r, unknown_reference(r[0].calibration), {}), 1)
 
 
 def synthetic_datasets(seeds: tuple[int, ...] = SYNTH_SEEDS) -> Iterator[Dataset]:

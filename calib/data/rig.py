@@ -1,0 +1,46 @@
+"""A rig of cameras calibrated together against one LiDAR (:attr:`Calibration.T_cam_rig`).
+
+Where a vehicle carries several cameras whose poses relative to each other are known (from the
+rig's own calibration, or a dataset's ``cam2ego``), one LiDAR scan seen by all of them constrains
+the LiDAR's pose far better than any one camera's view: a translation along one camera's optical
+axis is a sideways shift in the cameras beside it. The unknown is then ``T_rig_lidar``, and each
+camera's extrinsic ``T_cam_rig · T_rig_lidar``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from calib.data.types import Frame
+from calib.errors import DataError
+
+__all__ = ["as_rig"]
+
+
+def as_rig(frames: Sequence[Frame]) -> list[Frame]:
+    """The frames as cameras of one rig whose frame is the first camera's: each frame's
+    ``T_cam_rig = T_cam_lidar · T_first_lidar⁻¹`` from the extrinsics they carry (the reference,
+    else the data's initial one), which are taken as right relative to each other.
+
+    Raises:
+        DataError: no frames, or a frame that carries neither extrinsic.
+    """
+    if not frames:
+        raise DataError("frames", "a rig needs at least one camera's frame")
+    known = []
+    for frame in frames:
+        c = frame.calibration
+        T = c.T_cam_lidar if c.T_cam_lidar is not None else c.initial_T_cam_lidar
+        if T is None:
+            raise DataError(
+                frame.name or "frame", "carries no extrinsic to place its camera in the rig (give T_cam_rig)"
+            )
+        known.append(T)
+    first_inv = np.linalg.inv(known[0])
+    return [
+        replace(f, calibration=replace(f.calibration, T_cam_rig=T @ first_inv))
+        for f, T in zip(frames, known, strict=True)
+    ]
