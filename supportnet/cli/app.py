@@ -298,6 +298,15 @@ def calibrate(
             "and say so when it looks wrong.",
         ),
     ] = True,
+    rig: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Another camera of --data's rig (a dataset of one camera and the same scans, paired "
+            "by position; repeat for each): "
+            "calibrate the cameras together, their extrinsics taken as right relative to each other; "
+            "the answer is --data's camera's, result.json's rig gives each camera's.",
+        ),
+    ] = None,
 ) -> None:
     """Stage 4: support-guided (or uniform) sampling and weighted SE(3) refinement, in passes."""
     from calib.refine.passes import load_calibrate_config
@@ -307,6 +316,8 @@ def calibrate(
         raise ConfigError(
             "--runs", "--online calibrates one stream from one start; run it again with another --seed"
         )
+    if online and rig:
+        raise ConfigError("--rig", "--online calibrates one camera; leave --rig out")
     cfg = load_calibrate_config(config)
     if time_offset is not None:
         cfg = cfg.model_copy(update={"time_offset": time_offset_setting(time_offset, cfg.time_offset)})
@@ -315,7 +326,9 @@ def calibrate(
 
         run_online(data, sequence, support, init, out, cfg, seed, overwrite, camera=camera)
         return
-    run_calibrate(data, sequence, support, init, out, cfg, runs, seed, overwrite, camera=camera, check=check)
+    run_calibrate(
+        data, sequence, support, init, out, cfg, runs, seed, overwrite, camera=camera, check=check, rig=rig or ()
+    )
 
 
 @app.command()

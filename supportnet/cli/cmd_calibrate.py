@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import re
 import time
+from collections.abc import Sequence
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
@@ -26,12 +28,14 @@ from rich.console import Console
 from calib.data import open_dataset
 from calib.data.extrinsic_file import read_extrinsic
 from calib.data.io import write_image
+from calib.data.rig import as_rig
 from calib.data.types import Frame
+from calib.data.types import Sequence as DataSequence
 from calib.errors import ConfigError, DataError
 from calib.geometry import perturb
 from calib.init.lidar_odometry import SequenceMotions
 from calib.init.motion_init import initial_calibration, load_stage1_config
-from calib.pipeline import Calibrator
+from calib.pipeline import Calibrator, select_frames
 from calib.projection import project_scan
 from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
@@ -105,6 +109,28 @@ def paired_wins(runs: list[dict], baseline: list[dict]) -> dict:
     }
 
 
+def rig_frames(
+    sequences: Sequence[DataSequence], paths: Sequence[Path], count: int
+) -> tuple[list[Frame], list[int]]:
+    """The frames of a rig's cameras (one sequence each, the same scans paired by position) at
+    ``max(1, count // cameras)`` scans spread over the sequences, every camera's at each, placed
+    in one rig whose frame is the first camera's (:func:`calib.data.rig.as_rig`); and the scan
+    position of each frame.
+
+    Raises:
+        DataError: the sequences hold different numbers of frames.
+    """
+    lengths = [len(s) for s in sequences]
+    if len(set(lengths)) > 1:
+        listed = ", ".join(f"{p} {n}" for p, n in zip(paths, lengths, strict=True))
+        raise DataError(paths[1], f"a rig's cameras pair their frames by position and need as many: {listed}")
+    frames, sweeps = [], []
+    for i in select_frames(lengths[0], max(1, count // len(sequences))):
+        frames += as_rig([s[int(i)] for s in sequences])
+        sweeps += [int(i)] * len(sequences)
+    return frames, sweeps
+
+
 def _overlay(frame: Frame, T_before: np.ndarray, T_after: np.ndarray) -> np.ndarray:
     """Fig. 1 style: the scan coloured by depth on the image, before (top) and after (bottom)."""
     panels = [
@@ -139,11 +165,19 @@ def _markdown(result: dict) -> str:
             f"{name} beat uniform in translation in {p['translation_wins']} of {p['runs']} runs "
             f"and in rotation in {p['rotation_wins']} of {p['runs']}."
         )
-    if result["check"] is not None:
+    rig = result.get("rig")
+    if rig is not None:
         lines += [
             "",
-            f"Check of the answer ({result['support']}, run 1; no ground truth): "
-            + _check_line(result["check"], result["init"]),
+            f"A rig of {len(rig)} cameras calibrated together: the answer is {result['data']}'s "
+            "camera's extrinsic; each camera's is in result.json's rig.",
+        ]
+    if result["check"] is not None:
+        alone = f" on {result['data']}'s camera alone" if rig is not None else ""
+        lines += [
+            "",
+            f"Check of the answer{alone} ({result['support']}, run 1; no ground truth): "
+            + _check_line(result["check"], stage1_helps=rig is None and result["init"] != "stage1"),
         ]
     return "\n".join(lines) + "\n"
 
@@ -171,12 +205,12 @@ def _check_summary(result: CheckResult) -> dict:
     return {key: full[key] for key in keep}
 
 
-def _check_line(check: dict, init: str) -> str:
-    """:func:`check_line` of the answer's check, with what to try when it is not good (``init``:
-    the ``--init`` the answer came from)."""
+def _check_line(check: dict, stage1_helps: bool) -> str:
+    """:func:`check_line` of the answer's check, with what to try when it is not good
+    (``stage1_helps``: the answer came from neither Stage 1 nor a rig, which it cannot start)."""
     line = check_line(check)
     if check["verdict"] != "good":
-        other = "another start" if init == "stage1" else "another start (or --init stage1)"
+        other = "another start (or --init stage1)" if stage1_helps else "another start"
         line += f". This answer is likely wrong: calibrate again from {other}"
     return line
 
@@ -204,11 +238,14 @@ def run_calibrate(
     console: Console | None = None,
     camera: int | str | None = None,
     check: bool = True,
+    rig: Sequence[Path] = (),
 ) -> dict:
     """Paired runs of Stage 4 for every support, the top-level answer checked (``check``);
-    returns what ``result.json`` holds."""
+    returns what ``result.json`` holds. ``rig``: datasets of the other cameras of ``data``'s rig
+    (the same scans, paired by position), calibrated together with it (:mod:`calib.data.rig`):
+    the answer is ``data``'s camera's extrinsic, each other camera's follows from it."""
     console = console or make_console()
-    inputs = [data, *support_paths(supports_text)]
+    inputs = [data, *rig, *support_paths(supports_text)]
     if init_text.startswith("file:"):
         inputs.append(Path(init_text[len("file:") :]))
     claim_output(out, overwrite, inputs)
@@ -217,10 +254,16 @@ def run_calibrate(
     init_kind, init_arg = parse_init(init_text)
     matcher = build_matcher(config.matcher, config.edge, config.flow_model)
     supports = parse_supports(supports_text, config.support_map)
+    if rig and (init_kind == "stage1" or offline_maps_folders(supports)):
+        what = "--init stage1" if init_kind == "stage1" else "an offline:MAPS support"
+        raise ConfigError("--rig", f"{what} takes one camera; give --init perturb:/file: and uniform or onnx")
     start = time.perf_counter()
-    with open_dataset(data, sequence=sequence, camera=camera) as seq:
+    with ExitStack() as stack:
+        seq = stack.enter_context(open_dataset(data, sequence=sequence, camera=camera))
+        others = [stack.enter_context(open_dataset(path)) for path in rig]  # one camera's sequence each
         for maps in offline_maps_folders(supports):
             check_maps_fingerprint(maps, seq)
+        calibrated, sweeps = (seq, None) if not rig else rig_frames([seq, *others], [data, *rig], config.frames)
         T_ref = seq.calibration.T_cam_lidar
         if init_kind == "perturb" and T_ref is None:
             raise DataError(data, "has no reference calibration to perturb; use --init file:PATH")
@@ -242,7 +285,9 @@ def run_calibrate(
         if init_kind == "file" and (hint := inverse_hint([seq[len(seq) // 2]], np.asarray(init_arg))):
             console.print(f"The initial extrinsic: {hint}", markup=False, highlight=False, soft_wrap=True)
         motions: SequenceMotions | str = "time_offset.mode: off"
-        if config.time_offset.mode != "off":  # the LiDAR's motion around the used frames, once for all runs
+        if rig:
+            motions = "a rig's cameras (the time offset is modelled for one camera)"
+        elif config.time_offset.mode != "off":  # the LiDAR's motion around the used frames, once for all runs
             motions = SequenceMotions(seq, config.time_offset.neighbours, config.time_offset.deskew_rounds)
         coarse = coarse_matcher(config)
         calibrators = {
@@ -265,12 +310,16 @@ def run_calibrate(
                     # the same sampling draws for every support: a paired comparison
                     results[name].append(
                         calibrator.calibrate(
-                            seq, T_init, seed=(seed, run), motions=motions, on_stage=stage_done
+                            calibrated, T_init, seed=(seed, run), motions=motions, on_stage=stage_done
                         )
                     )
                     progress.advance(task)
         first = results[supports[0].name][0]
-        frames = [seq[i] for i in first.frame_indices]  # the first answer's, for its check and overlay
+        # the first answer's frames, for its check and overlay: of a rig, those of --data's camera
+        # (whose extrinsic the answer is)
+        used = first.frame_indices if sweeps is None else sorted({sweeps[i] for i in first.frame_indices})
+        frames = [seq[i] for i in used]
+        cameras = None if sweeps is None else [calibrated[i].calibration.T_cam_rig for i in range(len(rig) + 1)]
     checked = None
     if check:
         with console.status(f"Checking the answer on {len(frames)} frame(s) (no ground truth)"):
@@ -306,6 +355,12 @@ def run_calibrate(
         "results": by_support,
         "paired_vs_uniform": paired,
         "check": checked,
+        "rig": None
+        if cameras is None
+        else [
+            {"data": str(path), "T_cam_lidar": (T_cam_rig @ first.T_cam_lidar).tolist()}
+            for path, T_cam_rig in zip([data, *rig], cameras, strict=True)
+        ],
         "config": config.model_dump(mode="json"),
         "wall_s": time.perf_counter() - start,
     }
