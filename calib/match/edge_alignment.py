@@ -192,7 +192,9 @@ class EdgeAlignment:
         out = []
         for chunk in P.split(256, dim=1):
             c = chunk.shape[1]
-            uvw = torch.bmm(self._homogeneous, chunk.reshape(n_frames, -1, 4).mT).view(n_frames, n_points, c, 3)
+            uvw = torch.bmm(self._homogeneous, chunk.reshape(n_frames, -1, 4).mT).view(
+                n_frames, n_points, c, 3
+            )
             z = uvw[..., 2:]
             grid = (uvw[..., :2] / z.clamp_min(1e-3)).sub_(1.0)  # (F, N, c, 2)
             sampled = F.grid_sample(maps, grid, align_corners=True, padding_mode="zeros")[:, 0]  # (F, N, c)

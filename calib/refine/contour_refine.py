@@ -95,7 +95,9 @@ def contour_refine(
         ConfigError: the frames are a rig's cameras (this experimental score has one camera).
     """
     if any(f.calibration.T_cam_rig is not None for f in frames):
-        raise ConfigError("contour.enabled", "the contour score has one camera: turn it off to calibrate a rig")
+        raise ConfigError(
+            "contour.enabled", "the contour score has one camera: turn it off to calibrate a rig"
+        )
     config = config if config is not None else ContourRefineConfig()
     T = torch.as_tensor(np.asarray(T_init, np.float64))
     levels = []

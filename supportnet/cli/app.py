@@ -327,7 +327,18 @@ def calibrate(
         run_online(data, sequence, support, init, out, cfg, seed, overwrite, camera=camera)
         return
     run_calibrate(
-        data, sequence, support, init, out, cfg, runs, seed, overwrite, camera=camera, check=check, rig=rig or ()
+        data,
+        sequence,
+        support,
+        init,
+        out,
+        cfg,
+        runs,
+        seed,
+        overwrite,
+        camera=camera,
+        check=check,
+        rig=rig or (),
     )
 
 

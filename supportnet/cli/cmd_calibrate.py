@@ -263,7 +263,9 @@ def run_calibrate(
         others = [stack.enter_context(open_dataset(path)) for path in rig]  # one camera's sequence each
         for maps in offline_maps_folders(supports):
             check_maps_fingerprint(maps, seq)
-        calibrated, sweeps = (seq, None) if not rig else rig_frames([seq, *others], [data, *rig], config.frames)
+        calibrated, sweeps = (
+            (seq, None) if not rig else rig_frames([seq, *others], [data, *rig], config.frames)
+        )
         T_ref = seq.calibration.T_cam_lidar
         if init_kind == "perturb" and T_ref is None:
             raise DataError(data, "has no reference calibration to perturb; use --init file:PATH")
@@ -319,7 +321,9 @@ def run_calibrate(
         # (whose extrinsic the answer is)
         used = first.frame_indices if sweeps is None else sorted({sweeps[i] for i in first.frame_indices})
         frames = [seq[i] for i in used]
-        cameras = None if sweeps is None else [calibrated[i].calibration.T_cam_rig for i in range(len(rig) + 1)]
+        cameras = (
+            None if sweeps is None else [calibrated[i].calibration.T_cam_rig for i in range(len(rig) + 1)]
+        )
     checked = None
     if check:
         with console.status(f"Checking the answer on {len(frames)} frame(s) (no ground truth)"):

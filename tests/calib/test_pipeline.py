@@ -570,7 +570,9 @@ def test_a_rig_is_calibrated_through_its_cameras(frames):
     does of ``T_cam_lidar`` above, each frame matched under ``T_cam_rig · T``; its reference is
     ``T_rig_lidar``. A rig's camera beside a camera on its own is refused."""
     T_ref = frames[0].calibration.T_cam_lidar
-    T_rig_lidar = se3_exp(torch.tensor([1.0, 0.2, -0.3, 0.0, 1.5708, 0.1], dtype=torch.float64)).numpy() @ T_ref
+    T_rig_lidar = (
+        se3_exp(torch.tensor([1.0, 0.2, -0.3, 0.0, 1.5708, 0.1], dtype=torch.float64)).numpy() @ T_ref
+    )
     T_cam_rig = T_ref @ np.linalg.inv(T_rig_lidar)
     rig = [replace(f, calibration=replace(f.calibration, T_cam_rig=T_cam_rig)) for f in frames]
     under = match_frames(EdgeMatcher(FAST.edge), rig[:1], T_rig_lidar)[0]

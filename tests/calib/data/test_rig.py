@@ -22,8 +22,13 @@ def test_each_camera_in_the_rig_keeps_its_own_extrinsic():
     frames = make_frames(3)
     generator = torch.Generator().manual_seed(1)
     own = [perturb(frames[0].calibration.T_cam_lidar, 40.0, 30.0, generator) for _ in frames]
-    frames = [replace(f, calibration=replace(f.calibration, T_cam_lidar=T)) for f, T in zip(frames, own, strict=True)]
-    frames[2] = replace(frames[2], calibration=replace(frames[2].calibration, T_cam_lidar=None, initial_T_cam_lidar=own[2]))
+    frames = [
+        replace(f, calibration=replace(f.calibration, T_cam_lidar=T))
+        for f, T in zip(frames, own, strict=True)
+    ]
+    frames[2] = replace(
+        frames[2], calibration=replace(frames[2].calibration, T_cam_lidar=None, initial_T_cam_lidar=own[2])
+    )
     rig = as_rig(frames)
     np.testing.assert_allclose(rig[0].calibration.T_cam_rig, np.eye(4), atol=1e-12)
     for frame, T in zip(rig, own, strict=True):

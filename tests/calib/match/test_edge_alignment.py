@@ -176,7 +176,11 @@ def test_a_rigs_frames_score_as_each_camera_alone(small_urban):
     zoomed[:2, :2] *= 1.25
     alone = [
         small_urban[0],
-        Frame(small_urban[1].image[:150, :500].copy(), small_urban[1].points, replace(small_urban[1].calibration, K=zoomed)),
+        Frame(
+            small_urban[1].image[:150, :500].copy(),
+            small_urban[1].points,
+            replace(small_urban[1].calibration, K=zoomed),
+        ),
     ]
     rig = [Frame(f.image, f.points, replace(f.calibration, T_cam_rig=T_cam_rig)) for f in alone]
     moves = se3_exp(torch.tensor([[0, 0, 0, 0, 0, 0], [0.05, 0, -0.1, 0.01, 0.02, 0]], dtype=torch.float64))

@@ -207,7 +207,9 @@ def test_a_rig_of_the_six_nuscenes_cameras_is_calibrated_together(realdata, tmp_
 
     folders = [custom_from_nuscenes(realdata, c, tmp_path / c) for c in NUSCENES_CAMERAS]
     config = load_calibrate_config()
-    out = run_calibrate(folders[0], None, "uniform", "perturb:25,5", tmp_path / "cal", config, rig=folders[1:])
+    out = run_calibrate(
+        folders[0], None, "uniform", "perturb:25,5", tmp_path / "cal", config, rig=folders[1:]
+    )
     assert out["initial_error"]["translation_cm"] == pytest.approx(25.0)
     assert out["error"]["translation_cm"] < 10.0 and out["error"]["rotation_deg"] < 0.6
     assert [entry["data"] for entry in out["rig"]] == [str(f) for f in folders]
@@ -225,4 +227,12 @@ def test_a_rigs_cameras_need_as_many_frames(still_vineyard, realdata, tmp_path):
 
     one = custom_from_nuscenes(realdata, "CAM_FRONT", tmp_path / "front")
     with pytest.raises(DataError, match="pair their frames by position and need as many"):
-        run_calibrate(one, None, "uniform", "perturb:10,2", tmp_path / "cal", FAST, rig=[still_vineyard / "sequences" / "00"])
+        run_calibrate(
+            one,
+            None,
+            "uniform",
+            "perturb:10,2",
+            tmp_path / "cal",
+            FAST,
+            rig=[still_vineyard / "sequences" / "00"],
+        )
