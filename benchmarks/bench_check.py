@@ -3,14 +3,15 @@ reference extrinsic, and seeded draws of 1° / 5 cm and 0.5° / 2.5 cm errors in
 
 Real fixtures (``../shared/realdata``, converted by :func:`calib.data.real_fixtures.check_fixtures`):
 the two KITTI raw 2011_09_28 folders (grey camera 0), KITTI object 000008 (cropped scan) and 000114
-(full scan), the six nuScenes cameras, the three PJLab scenes. Synthetic: urban and vineyard at
+(full scan), the six nuScenes cameras, and the same six as one rig (``nuscenes-rig``), the three
+PJLab scenes. Synthetic: urban and vineyard at
 KITTI's pixel scale (1242x375, f = 721.5), still (no wind, no camera time offset), unseen seeds,
 one frame and five frames; these are where the thresholds were set.
 
 Prints a table (verdict of the reference, share of perturbed draws called bad and suspect, scores,
 the smallest error each dataset shows) and writes ``benchmarks/results/check.json``.
 
-    .venv/bin/python benchmarks/bench_check.py [--draws 8] [--only real|synthetic]
+    .venv/bin/python benchmarks/bench_check.py [--draws 8] [--only real|synthetic] [--fixtures NAMES]
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from results_io import RESULTS, save_results
 
 from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import check_fixtures, realdata_root
+from calib.data.rig import as_rig, unknown_reference
 from calib.geometry import calibration_error, perturb
 from calib.synth.generate import Synthesizer
 from calib.synth.synth_config import load_synth_config
@@ -38,6 +40,7 @@ SIZES = {"1deg_5cm": (5.0, 1.0), "0.5deg_2.5cm": (2.5, 0.5)}
 FULL_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
 STILL = {"wind": {"amplitude_m": 0.0}, "timing": {"camera_offset_s": 0.0}, "camera": FULL_RES}
 SYNTH_SEEDS = (101, 102, 103, 104)
+NUSCENES_RIG = "nuscenes-rig"
 
 
 def roll_share(T: np.ndarray, T_ref: np.ndarray) -> float:
@@ -87,20 +90,33 @@ def dataset_row(name: str, frames: list[Frame], T_ref: np.ndarray, config: Check
     return row
 
 
-def real_rows(config: CheckConfig, draws: int) -> dict:
+def real_rows(config: CheckConfig, draws: int, wanted: set[str] | None = None) -> dict:
+    """Every real fixture's row (or those named in ``wanted``), and ``nuscenes-rig``: the one
+    nuScenes sweep seen by its six cameras checked as one rig (:mod:`calib.data.rig`; the
+    extrinsic checked is CAM_FRONT's, the rig's frame)."""
     root = realdata_root()
     if root is None:
         print("real fixtures absent (../shared/realdata, SUPPORTNET_REALDATA): skipped")
         return {}
-    rows = {}
+    rows, nuscenes = {}, []
     with tempfile.TemporaryDirectory() as work:
         for fixture in check_fixtures(root, Path(work)):
             with open_dataset(fixture.path, camera=fixture.camera) as seq:
                 frames = [seq[i] for i in range(len(seq))][: config.frames]
+                if fixture.name.startswith("nuscenes-cam"):
+                    nuscenes += frames
+                if wanted is not None and fixture.name not in wanted:
+                    continue
                 rows[fixture.name] = dataset_row(
                     fixture.name, frames, seq.calibration.T_cam_lidar, config, draws
                 )
             print(line(fixture.name, rows[fixture.name]), flush=True)
+    if wanted is None or NUSCENES_RIG in wanted:
+        rig = as_rig(nuscenes)
+        rows[NUSCENES_RIG] = dataset_row(
+            NUSCENES_RIG, rig, unknown_reference(rig[0].calibration), config, draws
+        )
+        print(line(NUSCENES_RIG, rows[NUSCENES_RIG]), flush=True)
     return rows
 
 
@@ -161,6 +177,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--draws", type=int, default=8, help="perturbed draws per size and dataset")
     parser.add_argument("--only", choices=("real", "synthetic"), default=None)
+    parser.add_argument(
+        "--fixtures",
+        default=None,
+        help=f"comma-separated real rows (fixture names, {NUSCENES_RIG}); written to check_fixtures.json",
+    )
     args = parser.parse_args()
     config = CheckConfig()
     start = time.perf_counter()
@@ -172,6 +193,10 @@ def main() -> None:
         if kept.get("config") == results["config"] and kept.get("draws") == args.draws:
             other = "synthetic" if args.only == "real" else "real"
             results.update({k: kept[k] for k in (other, f"{other}_summary") if k in kept})
+    if args.fixtures:  # a few real rows, kept apart from the README's table
+        results["real"] = real_rows(config, args.draws, set(args.fixtures.split(",")))
+        print(f"wrote {save_results('check_fixtures', results)}")
+        return
     if args.only != "synthetic":
         results["real"] = real_rows(config, args.draws)
         results["real_summary"] = summary(results["real"])

@@ -60,9 +60,8 @@ from rich.console import Console
 
 from calib.data import Frame, open_dataset
 from calib.data.real_fixtures import check_fixtures, realdata_root
-from calib.data.rig import as_rig
+from calib.data.rig import as_rig, unknown_reference
 from calib.geometry import calibration_error, perturb
-from calib.pipeline import unknown_reference
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
 from calib.synth.synth_config import load_synth_config
 from supportnet import Calibrator  # builds the config's matcher, the learned one too

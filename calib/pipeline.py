@@ -23,7 +23,8 @@ from functools import partial
 import numpy as np
 
 from calib.data.extrinsic_file import rigid_problem
-from calib.data.types import Calibration, Frame, Sequence
+from calib.data.rig import unknown_reference
+from calib.data.types import Frame, Sequence
 from calib.errors import ConfigError, DataError
 from calib.init.lidar_odometry import SequenceMotions
 from calib.init.motion_init import Stage1Config, Stage1Result, initial_calibration, load_stage1_config
@@ -632,15 +633,6 @@ def _stamp_offset(frames: list[Frame]) -> float | None:
     if len(offsets) != len(frames) or np.ptp(offsets) > 1e-6:
         return None
     return float(np.mean(offsets))
-
-
-def unknown_reference(calibration: Calibration) -> np.ndarray | None:
-    """The reference of what a calibration of this camera's frames estimates: its
-    ``T_cam_lidar``, or in a rig ``T_rig_lidar = T_cam_rig⁻¹ · T_cam_lidar``."""
-    T = calibration.T_cam_lidar
-    if T is None or calibration.T_cam_rig is None:
-        return T
-    return np.linalg.inv(calibration.T_cam_rig) @ T
 
 
 def _checked_extrinsic(T: np.ndarray, name: str) -> np.ndarray:

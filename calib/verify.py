@@ -65,6 +65,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
 
 from calib.data.extrinsic_file import rigid_problem
+from calib.data.rig import unknown_reference
 from calib.data.types import Frame
 from calib.errors import DataError, NumericalError
 from calib.geometry import calibration_error, se3_exp, twist_steps
@@ -478,8 +479,11 @@ def _one_thread() -> Iterator[None]:
 
 def view_share(frames: FrameList[Frame], T_cam_lidar: np.ndarray) -> float:
     """The share of the frames' points at least 0.5 m in front of the camera under
-    ``T_cam_lidar (4, 4)`` whose projection falls inside the image."""
-    seen = [in_view(f.points, T_cam_lidar, f.K, f.image_size, 0.0) for f in frames]
+    ``T_cam_lidar (4, 4)`` (a rig's: each frame under its camera's) whose projection falls inside
+    the image."""
+    seen = [
+        in_view(f.points, f.calibration.camera_extrinsic(T_cam_lidar), f.K, f.image_size, 0.0) for f in frames
+    ]
     return float(np.mean(np.concatenate(seen))) if seen else 0.0
 
 
@@ -521,11 +525,11 @@ def inverse_hint(
 def check_extrinsic(
     frames: FrameList[Frame], T_cam_lidar: np.ndarray, config: CheckConfig | None = None, seed: int = 0
 ) -> CheckResult:
-    """Check ``T_cam_lidar (4, 4)`` on ``frames`` (one camera) without ground truth (see the
-    module docstring).
+    """Check ``T_cam_lidar (4, 4)`` on ``frames`` (one camera, or a rig's cameras: ``T_cam_lidar``
+    is then the rig's ``T_rig_lidar``) without ground truth (see the module docstring).
 
     Raises:
-        DataError: ``T_cam_lidar`` is not rigid, or the frames do not share one camera.
+        DataError: ``T_cam_lidar`` is not rigid, or the frames neither share one camera nor form a rig.
         NumericalError: the scans show too few contours in the image to check anything.
     """
     with _one_thread():
@@ -626,7 +630,7 @@ def _check(
         at_bound=at_bound,
         frames=checks,
         reasons=reasons,
-        reference_T_cam_lidar=frames[0].calibration.T_cam_lidar,
+        reference_T_cam_lidar=unknown_reference(frames[0].calibration),
         peak_share=peak_share,
         runtime_s=time.perf_counter() - start,
         config=config.model_dump(mode="json"),

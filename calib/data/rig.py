@@ -11,13 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
-from calib.data.types import Frame
+from calib.data.types import Calibration, Frame
+from calib.data.types import Sequence as DataSequence
 from calib.errors import DataError
 
-__all__ = ["as_rig"]
+__all__ = ["as_rig", "rig_frames", "unknown_reference"]
 
 
 def as_rig(frames: Sequence[Frame]) -> list[Frame]:
@@ -44,3 +46,29 @@ def as_rig(frames: Sequence[Frame]) -> list[Frame]:
         replace(f, calibration=replace(f.calibration, T_cam_rig=T @ first_inv))
         for f, T in zip(frames, known, strict=True)
     ]
+
+
+def unknown_reference(calibration: Calibration) -> np.ndarray | None:
+    """The reference of what a calibration of this camera's frames estimates: its
+    ``T_cam_lidar``, or in a rig ``T_rig_lidar = T_cam_rig⁻¹ · T_cam_lidar``."""
+    T = calibration.T_cam_lidar
+    if T is None or calibration.T_cam_rig is None:
+        return T
+    return np.linalg.inv(calibration.T_cam_rig) @ T
+
+
+def rig_frames(
+    sequences: Sequence[DataSequence], paths: Sequence[Path], positions: Sequence[int]
+) -> list[Frame]:
+    """The frames at ``positions`` of a rig's cameras, one sequence each (the same scans, paired
+    by position), every camera's frame of each scan together, in one rig whose frame is the
+    first camera's (:func:`as_rig`).
+
+    Raises:
+        DataError: the sequences (read from ``paths``) hold different numbers of frames.
+    """
+    lengths = [len(s) for s in sequences]
+    if len(set(lengths)) > 1:
+        listed = ", ".join(f"{p} {n}" for p, n in zip(paths, lengths, strict=True))
+        raise DataError(paths[1], f"a rig's cameras pair their frames by position and need as many: {listed}")
+    return [frame for i in positions for frame in as_rig([s[int(i)] for s in sequences])]

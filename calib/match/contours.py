@@ -193,7 +193,9 @@ def _directional_edges(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class ContourScore:
-    """Edge alignment of the contour samples of ``frames`` (one shared ``K``), taken under ``T``.
+    """Edge alignment of the contour samples of ``frames`` (of one camera, or of a rig's cameras:
+    each frame then projects through its camera's ``T_cam_rig · T``, with its own ``K``; blur
+    scales in pixels are the first frame's), taken under ``T``.
 
     Attributes:
         counts: per frame ``{kind: samples}`` (vertical edges, horizontal edges, silhouettes).
@@ -211,17 +213,29 @@ class ContourScore:
         if not frames:
             raise DataError("frames", "the check needs at least one frame")
         K = frames[0].K
-        if any(not np.allclose(f.K, K) or f.image_size != frames[0].image_size for f in frames):
+        in_rig = frames[0].calibration.T_cam_rig is not None
+        if any((f.calibration.T_cam_rig is not None) != in_rig for f in frames):
+            raise DataError("frames", "mix cameras of a rig (T_cam_rig) with cameras on their own")
+        if not in_rig and any(
+            not np.allclose(f.K, K) or f.image_size != frames[0].image_size for f in frames
+        ):
             raise DataError("frames", "have different intrinsics or image sizes; check one camera at a time")
         rng = np.random.default_rng(seed)
-        self.K = torch.as_tensor(K, dtype=torch.float64)
+        self.K = torch.stack([torch.as_tensor(f.K, dtype=torch.float64) for f in frames])  # (F, 3, 3)
+        self._rig = torch.stack(
+            [torch.as_tensor(f.calibration.camera_extrinsic(np.eye(4))) for f in frames]
+        )  # (F, 4, 4) T_cam_rig, the identity for a camera on its own
         self.focal = float(K[0, 0])
-        self.size = frames[0].image_size
+        self._blur = [float(f.K[0, 0]) / self.focal for f in frames]
+        self.sizes = torch.tensor([f.image_size for f in frames], dtype=torch.float64)  # (F, 2) H, W
+        # maps of several sizes (a rig's cameras) share the largest, padded with zeros (outside: 0)
+        self.size = tuple(max(f.image_size[a] for f in frames) for a in (0, 1))
         self.counts: list[dict[str, int]] = []
         samples: list[tuple[np.ndarray, np.ndarray]] = []
         self._edges = []
         for frame in frames:
-            keep = in_view(frame.points, T, K, self.size, config.view_margin)
+            T_cam = frame.calibration.camera_extrinsic(T)
+            keep = in_view(frame.points, T_cam, frame.K, frame.image_size, config.view_margin)
             xyz = np.asarray(frame.points[keep, :3], np.float64)
             h = horizontal_edges(xyz, both_sides=config.both_sides)
             v, sky, _ = vertical_edges(xyz, both_sides=config.both_sides)
@@ -260,7 +274,7 @@ class ContourScore:
 
     def _blocks(self, T: np.ndarray, grid: tuple[int, int]) -> torch.Tensor:
         uv, _ = self._project(torch.as_tensor(T, dtype=torch.float64)[None])
-        H, W = self.size
+        H, W = self.sizes[:, 0, None], self.sizes[:, 1, None]  # each frame's own
         cu = (uv[..., 0] / W * grid[0]).floor().clamp(0, grid[0] - 1).long()
         cv = (uv[..., 1] / H * grid[1]).floor().clamp(0, grid[1] - 1).long()
         frame = torch.arange(self.points.shape[1])[None, :, None]
@@ -269,25 +283,26 @@ class ContourScore:
 
     def _project(self, T: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``uv (C, 2, F, N, 2)`` and depth ``(C, 2, F, N)`` of the samples under ``T (C, 4, 4)``."""
-        KR = self.K @ T[:, :3, :3]
-        Kt = T[:, :3, 3] @ self.K.T
-        flat = self.points.reshape(-1, 3)
-        uvw = torch.matmul(flat, KR.transpose(1, 2)) + Kt[:, None]  # (C, M, 3); w is the depth
-        uvw = uvw.reshape(len(T), *self.points.shape)
+        T_cam = self._rig[None] @ T[:, None]  # (C, F, 4, 4) each frame's camera's extrinsic
+        KR = self.K @ T_cam[..., :3, :3]  # (C, F, 3, 3)
+        Kt = (self.K @ T_cam[..., :3, 3:])[..., 0]  # (C, F, 3)
+        # (C, 1, F, N, 3) per frame: its samples of both kinds through its camera; w is the depth
+        uvw = torch.einsum("kfnj,cfij->ckfni", self.points, KR) + Kt[:, None, :, None]
         z = uvw[..., 2]
         return uvw[..., :2] / z.clamp_min(1e-3)[..., None], z
 
     def maps(self, sigma_px: float) -> list[torch.Tensor]:
-        """Per kind ``(F, 1, H, W)`` directional edge maps blurred by ``σ`` (peak 1)."""
+        """Per kind ``(F, 1, H, W)`` directional edge maps blurred by ``σ`` (at the first frame's
+        focal length; each frame's by its own) (peak 1)."""
         key = round(float(sigma_px), 3)
         if key not in self._maps:
             kinds = []
             for j in range(2):
-                blurred = []
-                for edges in self._edges:
-                    b = cv2.GaussianBlur(edges[j], (0, 0), sigma_px)
-                    blurred.append(b / max(float(b.max()), 1e-6))
-                kinds.append(torch.from_numpy(np.stack(blurred))[:, None].float())
+                maps = np.zeros((len(self._edges), 1, *self.size), np.float32)
+                for edges, scale, out in zip(self._edges, self._blur, maps, strict=True):
+                    b = cv2.GaussianBlur(edges[j], (0, 0), sigma_px * scale)
+                    out[0, : b.shape[0], : b.shape[1]] = b / max(float(b.max()), 1e-6)
+                kinds.append(torch.from_numpy(maps))
             self._maps[key] = kinds
         return self._maps[key]
 

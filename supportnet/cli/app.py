@@ -11,7 +11,15 @@ from typing import Annotated
 import typer
 
 from calib.errors import ConfigError, SupportnetError
-from supportnet.cli.options import Camera, Milliseconds, Overwrite, in_range, seed_of, time_offset_setting
+from supportnet.cli.options import (
+    Camera,
+    Milliseconds,
+    Overwrite,
+    Rig,
+    in_range,
+    seed_of,
+    time_offset_setting,
+)
 
 app = typer.Typer(
     name="supportnet",
@@ -298,15 +306,7 @@ def calibrate(
             "and say so when it looks wrong.",
         ),
     ] = True,
-    rig: Annotated[
-        list[Path] | None,
-        typer.Option(
-            help="Another camera of --data's rig (a dataset of one camera and the same scans, paired "
-            "by position; repeat for each): "
-            "calibrate the cameras together, their extrinsics taken as right relative to each other; "
-            "the answer is --data's camera's, result.json's rig gives each camera's.",
-        ),
-    ] = None,
+    rig: Rig = None,
 ) -> None:
     """Stage 4: support-guided (or uniform) sampling and weighted SE(3) refinement, in passes."""
     from calib.refine.passes import load_calibrate_config
@@ -360,6 +360,7 @@ def check(
     config: Annotated[Path | None, typer.Option(help="Check config (YAML; default: built in).")] = None,
     camera: Camera = None,
     overwrite: Overwrite = False,
+    rig: Rig = None,
 ) -> None:
     """Is this extrinsic right? No ground truth needed: a verdict (good, suspect, bad), a score
     per frame, the smallest error this data shows, a suggested correction and an overlay.
@@ -367,7 +368,7 @@ def check(
     from supportnet.cli.cmd_check import load_check_config, run_check
 
     cfg = load_check_config(config, frames=frames)
-    result = run_check(data, sequence, extrinsic, out, cfg, overwrite, camera=camera)
+    result = run_check(data, sequence, extrinsic, out, cfg, overwrite, camera=camera, rig=rig or ())
     raise typer.Exit(result["exit_code"])
 
 

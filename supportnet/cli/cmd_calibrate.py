@@ -28,9 +28,8 @@ from rich.console import Console
 from calib.data import open_dataset
 from calib.data.extrinsic_file import read_extrinsic
 from calib.data.io import write_image
-from calib.data.rig import as_rig
+from calib.data.rig import rig_frames
 from calib.data.types import Frame
-from calib.data.types import Sequence as DataSequence
 from calib.errors import ConfigError, DataError
 from calib.geometry import perturb
 from calib.init.lidar_odometry import SequenceMotions
@@ -109,32 +108,13 @@ def paired_wins(runs: list[dict], baseline: list[dict]) -> dict:
     }
 
 
-def rig_frames(
-    sequences: Sequence[DataSequence], paths: Sequence[Path], count: int
-) -> tuple[list[Frame], list[int]]:
-    """The frames of a rig's cameras (one sequence each, the same scans paired by position) at
-    ``max(1, count // cameras)`` scans spread over the sequences, every camera's at each, placed
-    in one rig whose frame is the first camera's (:func:`calib.data.rig.as_rig`); and the scan
-    position of each frame.
-
-    Raises:
-        DataError: the sequences hold different numbers of frames.
-    """
-    lengths = [len(s) for s in sequences]
-    if len(set(lengths)) > 1:
-        listed = ", ".join(f"{p} {n}" for p, n in zip(paths, lengths, strict=True))
-        raise DataError(paths[1], f"a rig's cameras pair their frames by position and need as many: {listed}")
-    frames, sweeps = [], []
-    for i in select_frames(lengths[0], max(1, count // len(sequences))):
-        frames += as_rig([s[int(i)] for s in sequences])
-        sweeps += [int(i)] * len(sequences)
-    return frames, sweeps
-
-
 def _overlay(frame: Frame, T_before: np.ndarray, T_after: np.ndarray) -> np.ndarray:
     """Fig. 1 style: the scan coloured by depth on the image, before (top) and after (bottom)."""
     panels = [
-        draw_projection(frame.image, project_scan(frame.points, T, frame.K, frame.image_size))
+        draw_projection(
+            frame.image,
+            project_scan(frame.points, frame.calibration.camera_extrinsic(T), frame.K, frame.image_size),
+        )
         for T in (T_before, T_after)
     ]
     return np.concatenate(panels, axis=0)
@@ -173,10 +153,10 @@ def _markdown(result: dict) -> str:
             "camera's extrinsic; each camera's is in result.json's rig.",
         ]
     if result["check"] is not None:
-        alone = f" on {result['data']}'s camera alone" if rig is not None else ""
+        cameras = f" on the rig's {len(rig)} cameras" if rig is not None else ""
         lines += [
             "",
-            f"Check of the answer{alone} ({result['support']}, run 1; no ground truth): "
+            f"Check of the answer{cameras} ({result['support']}, run 1; no ground truth): "
             + _check_line(result["check"], stage1_helps=rig is None and result["init"] != "stage1"),
         ]
     return "\n".join(lines) + "\n"
@@ -263,9 +243,10 @@ def run_calibrate(
         others = [stack.enter_context(open_dataset(path)) for path in rig]  # one camera's sequence each
         for maps in offline_maps_folders(supports):
             check_maps_fingerprint(maps, seq)
-        calibrated, sweeps = (
-            (seq, None) if not rig else rig_frames([seq, *others], [data, *rig], config.frames)
-        )
+        calibrated = seq
+        if rig:  # every camera's frame of max(1, frames // cameras) scans
+            positions = select_frames(len(seq), max(1, config.frames // (len(rig) + 1)))
+            calibrated = rig_frames([seq, *others], [data, *rig], positions)
         T_ref = seq.calibration.T_cam_lidar
         if init_kind == "perturb" and T_ref is None:
             raise DataError(data, "has no reference calibration to perturb; use --init file:PATH")
@@ -317,13 +298,10 @@ def run_calibrate(
                     )
                     progress.advance(task)
         first = results[supports[0].name][0]
-        # the first answer's frames, for its check and overlay: of a rig, those of --data's camera
-        # (whose extrinsic the answer is)
-        used = first.frame_indices if sweeps is None else sorted({sweeps[i] for i in first.frame_indices})
-        frames = [seq[i] for i in used]
-        cameras = (
-            None if sweeps is None else [calibrated[i].calibration.T_cam_rig for i in range(len(rig) + 1)]
-        )
+        # the first answer's frames, for its check and overlay (of a rig every camera's, the first
+        # --data's, whose extrinsic the answer is)
+        frames = [calibrated[i] for i in first.frame_indices]
+        cameras = [calibrated[i].calibration.T_cam_rig for i in range(len(rig) + 1)] if rig else None
     checked = None
     if check:
         with console.status(f"Checking the answer on {len(frames)} frame(s) (no ground truth)"):

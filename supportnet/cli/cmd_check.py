@@ -12,6 +12,8 @@ is one the data could not confirm, so a script stops to look at it); 2 bad input
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +22,7 @@ from rich.console import Console
 from calib.data import open_dataset
 from calib.data.extrinsic_file import read_extrinsic
 from calib.data.io import write_image
+from calib.data.rig import rig_frames
 from calib.projection import project_scan
 from calib.verify import CheckConfig, CheckResult, check_extrinsic
 from calib.yaml_io import read_yaml, validate
@@ -117,8 +120,9 @@ def _markdown(output: dict) -> str:
     lines = [
         f"# supportnet check: {output['verdict']}",
         "",
-        f"Data `{output['data']}`{where}, "
-        f"extrinsic `{output['extrinsic']}`, {len(output['frames'])} frame(s).",
+        f"Data `{output['data']}`{where}"
+        + (f" and its rig's {len(output['rig'])} other camera(s)" if output.get("rig") else "")
+        + f", extrinsic `{output['extrinsic']}`, {len(output['frames'])} frame(s).",
         "",
         *[f"- {r}" for r in output["reasons"]],
         "",
@@ -203,21 +207,24 @@ def run_check(
     overwrite: bool = False,
     console: Console | None = None,
     camera: str | None = None,
+    rig: Sequence[Path] = (),
 ) -> dict:
     """Check the extrinsic in ``extrinsic`` on ``data``; returns what ``check.json`` holds (its
-    ``exit_code`` is the command's)."""
+    ``exit_code`` is the command's). ``rig``: datasets of the other cameras of ``data``'s rig
+    (the same scans, paired by position), checked together with it (:mod:`calib.data.rig`): the
+    extrinsic is ``data``'s camera's."""
     console = console or make_console()
     config = config if config is not None else CheckConfig()
     T = read_extrinsic(extrinsic)
-    inputs = [data, extrinsic]
+    inputs = [data, *rig, extrinsic]
     claim_output(Path(out), overwrite, inputs)
-    with (
-        atomic_output(out, overwrite, inputs, command="check") as tmp,
-        open_dataset(data, sequence=sequence, camera=camera) as seq,
-    ):
-        picks = spread(len(seq), config.frames)
-        with console.status(f"Checking on {len(picks)} frame(s)"):
-            frames = [seq[i] for i in picks]
+    with ExitStack() as stack:
+        tmp = stack.enter_context(atomic_output(out, overwrite, inputs, command="check"))
+        seq = stack.enter_context(open_dataset(data, sequence=sequence, camera=camera))
+        others = [stack.enter_context(open_dataset(path)) for path in rig]  # one camera's sequence each
+        picks = spread(len(seq), max(1, config.frames // (len(rig) + 1)))
+        with console.status(f"Checking on {len(picks) * (len(rig) + 1)} frame(s)"):
+            frames = rig_frames([seq, *others], [data, *rig], picks) if rig else [seq[i] for i in picks]
             result = check_extrinsic(frames, T, config)
         output = {
             **result.to_dict(),
@@ -226,6 +233,7 @@ def run_check(
             "camera": camera,
             "extrinsic": str(extrinsic),
             "frame_indices": picks,
+            "rig": [str(path) for path in rig] or None,
         }
         write_json(tmp / "check.json", output)
         (tmp / "check.md").write_text(_markdown(output))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
@@ -13,7 +14,7 @@ from calib.seeds import check_seed
 if TYPE_CHECKING:  # the CLI imports torch only when a command runs
     from calib.refine.passes import TimeOffsetConfig
 
-__all__ = ["Camera", "Milliseconds", "Overwrite", "in_range", "seed_of", "time_offset_setting"]
+__all__ = ["Camera", "Milliseconds", "Overwrite", "Rig", "in_range", "seed_of", "time_offset_setting"]
 
 Overwrite = Annotated[
     bool,
@@ -25,6 +26,15 @@ Camera = Annotated[
     typer.Option(
         help="Camera where the dataset has several: a KITTI index (0-3; default 2, the left colour "
         "camera) or a ROS bag's image topic (default: its only one).",
+    ),
+]
+
+Rig = Annotated[
+    list[Path] | None,
+    typer.Option(
+        help="Another camera of --data's rig (a dataset of one camera and the same scans, paired by "
+        "position; repeat for each): the cameras together, their extrinsics taken as right relative "
+        "to each other; the extrinsic is --data's camera's (README: Several cameras: a rig).",
     ),
 ]
 

@@ -8,10 +8,9 @@ import torch
 
 from calib.data import open_dataset
 from calib.data.real_fixtures import NUSCENES_CAMERAS, custom_from_nuscenes
-from calib.data.rig import as_rig
+from calib.data.rig import as_rig, unknown_reference
 from calib.errors import DataError
 from calib.geometry import perturb
-from calib.pipeline import unknown_reference
 from tests.conftest import make_frames
 
 

@@ -57,3 +57,41 @@ def test_too_few_samples_are_refused(small_urban):
     empty = [Frame(small_urban[0].image, small_urban[0].points[:10], small_urban[0].calibration)]
     with pytest.raises(NumericalError, match="too few contour samples"):
         ContourScore(empty, small_urban[0].calibration.T_cam_lidar, ContourConfig())
+
+
+def test_a_rigs_frames_score_as_each_camera_alone(small_urban):
+    """Known answer: two frames as cameras of a rig (``T_cam_rig``), the second with a smaller
+    image (its maps padded with zeros to the first's size) and a longer focal length (its blur
+    scales with it), score each extrinsic ``T`` of the rig, frame by frame and in each image
+    block, as each frame on its own scores ``T_cam_rig · T``; a rig's camera beside a camera on
+    its own is refused."""
+    from dataclasses import replace
+
+    from calib.errors import DataError
+    from calib.geometry import se3_exp
+
+    T_ref = np.asarray(small_urban[0].calibration.T_cam_lidar)
+    T_rig_lidar = se3_exp(torch.tensor([0.2, -0.1, 0.3, 0.1, 1.2, -0.2], dtype=torch.float64)).numpy() @ T_ref
+    T_cam_rig = T_ref @ np.linalg.inv(T_rig_lidar)
+    zoomed = small_urban[1].calibration.K.copy()
+    zoomed[:2, :2] *= 1.25
+    second = replace(small_urban[1].calibration, K=zoomed)
+    alone = [small_urban[0], Frame(small_urban[1].image[:150, :500].copy(), small_urban[1].points, second)]
+    rig = [Frame(f.image, f.points, replace(f.calibration, T_cam_rig=T_cam_rig)) for f in alone]
+    config = ContourConfig(max_samples=100_000)  # every sample kept: no draw
+    moves = se3_exp(torch.tensor([[0, 0, 0, 0, 0, 0], [0.05, 0, -0.1, 0.01, 0.02, 0]], dtype=torch.float64))
+    T = moves @ torch.as_tensor(T_rig_lidar)
+    score = ContourScore(rig, T_rig_lidar, config)
+    sigma = score.sigma_px(0.3)
+    for k, frame in enumerate(alone):
+        single = ContourScore([frame], T_ref, config)
+        assert score.counts[k] == single.counts[0]
+        expected = single.per_frame(torch.as_tensor(T_cam_rig) @ T, sigma * frame.K[0, 0] / alone[0].K[0, 0])
+        np.testing.assert_allclose(score.per_frame(T, sigma)[:, k].numpy(), expected[:, 0].numpy(), atol=2e-6)
+        n = single.points.shape[2]  # the rig's samples are the frame's own, zero-padded further
+        used = single.weights[:, 0] > 0
+        cells = config.blocks[0] * config.blocks[1]
+        rig_blocks = score.block[:, k, :n][used] - 2 * k * cells  # the block ids of frame k start there
+        assert torch.equal(rig_blocks, single.block[:, 0][used])
+    with pytest.raises(DataError, match="rig"):
+        ContourScore([rig[0], alone[1]], T_rig_lidar, config)

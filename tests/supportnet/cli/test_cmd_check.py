@@ -140,3 +140,18 @@ def test_a_result_calibrated_on_other_data_is_noted(world, tmp_path):
         assert ("was calibrated on" in text) == noted, name
         if noted:
             assert f"this check reads `{data.resolve()}` sequence 00" in text
+
+
+@pytest.mark.realdata
+def test_check_a_rig_of_the_six_nuscenes_cameras(realdata, tmp_path):
+    """``--rig``: CAM_FRONT's reference checked with the five other cameras of the sweep is good
+    (alone, the front camera's is not: README), and check.json names the rig's datasets."""
+    from calib.data.real_fixtures import NUSCENES_CAMERAS, custom_from_nuscenes
+    from supportnet.cli.cmd_check import run_check
+
+    folders = [custom_from_nuscenes(realdata, c, tmp_path / c) for c in NUSCENES_CAMERAS]
+    np.savetxt(tmp_path / "front.txt", open_dataset(folders[0]).calibration.T_cam_lidar)
+    out = run_check(folders[0], None, tmp_path / "front.txt", tmp_path / "chk", rig=folders[1:])
+    assert out["verdict"] == "good" and out["exit_code"] == 0
+    assert out["rig"] == [str(f) for f in folders[1:]] and len(out["frames"]) == 6
+    assert "its rig's 5 other camera(s)" in (tmp_path / "chk" / "check.md").read_text()
