@@ -244,9 +244,10 @@ def run_calibrate(
         for maps in offline_maps_folders(supports):
             check_maps_fingerprint(maps, seq)
         calibrated = seq
-        if rig:  # every camera's frame of max(1, frames // cameras) scans
-            positions = select_frames(len(seq), max(1, config.frames // (len(rig) + 1)))
+        if rig:  # every camera's frame of as many scans as make at least `frames` frames
+            positions = select_frames(len(seq), -(-config.frames // (len(rig) + 1)))
             calibrated = rig_frames([seq, *others], [data, *rig], positions)
+            config = config.model_copy(update={"frames": len(calibrated)})  # all of them
         T_ref = seq.calibration.T_cam_lidar
         if init_kind == "perturb" and T_ref is None:
             raise DataError(data, "has no reference calibration to perturb; use --init file:PATH")

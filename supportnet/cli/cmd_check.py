@@ -222,7 +222,7 @@ def run_check(
         tmp = stack.enter_context(atomic_output(out, overwrite, inputs, command="check"))
         seq = stack.enter_context(open_dataset(data, sequence=sequence, camera=camera))
         others = [stack.enter_context(open_dataset(path)) for path in rig]  # one camera's sequence each
-        picks = spread(len(seq), max(1, config.frames // (len(rig) + 1)))
+        picks = spread(len(seq), -(-config.frames // (len(rig) + 1)))  # at least `frames` frames
         with console.status(f"Checking on {len(picks) * (len(rig) + 1)} frame(s)"):
             frames = rig_frames([seq, *others], [data, *rig], picks) if rig else [seq[i] for i in picks]
             result = check_extrinsic(frames, T, config)

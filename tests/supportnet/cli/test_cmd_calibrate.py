@@ -237,3 +237,13 @@ def test_a_rigs_cameras_need_as_many_frames(still_vineyard, realdata, tmp_path):
             FAST,
             rig=[still_vineyard / "sequences" / "00"],
         )
+
+
+def test_a_rig_uses_every_cameras_frame_of_enough_scans(still_vineyard, tmp_path):
+    """A rig of one camera twice (the same dataset as --data and --rig): frames = 3 becomes two
+    scans of both cameras, all four frames used, the perturbation undone as for one camera."""
+    sequence = still_vineyard / "sequences" / "00"
+    out = run_calibrate(sequence, None, "uniform", "perturb:10,2", tmp_path / "cal", FAST, rig=[sequence])
+    assert out["frames"] == 4 and len(out["frame_indices"]) == 4 and out["config"]["frames"] == 4
+    assert out["error"]["translation_cm"] < 2.5 and out["error"]["rotation_deg"] < 0.4
+    np.testing.assert_allclose(out["rig"][0]["T_cam_lidar"], out["rig"][1]["T_cam_lidar"], atol=1e-12)
