@@ -92,6 +92,9 @@ VARIANTS = {
     "global-flowcoarse3-pyramid-fullres-iwfine360": (
         "global+flow coarse on 3 frames+pyramid+dense at full resolution, 360 px on: intensity 0.25"
     ),  # the packaged calibrate.yaml on 2026-11-27 (stop 47), the probe on every frame
+    "global-flowcoarse3-probe4-pyramid-iwfine360": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at 360 px, intensity 0.25"
+    ),  # the packaged calibrate.yaml with its finest passes at the matcher's 360 px (a sparse LiDAR)
     "global-flowcoarse3-probe4-pyramid-fullres-iwfine360": (
         "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
         "intensity 0.25"
