@@ -525,7 +525,13 @@ class OnlineCalibrator:
 
     def push(self, frame: Frame) -> OnlineEstimate | None:
         """Add the next frame of the stream; an :class:`OnlineEstimate` when it closes a window,
-        else ``None``."""
+        else ``None``.
+
+        Raises:
+            DataError: a rig's camera's frame (``T_cam_rig``): online calibration has one camera.
+        """
+        if frame.calibration.T_cam_rig is not None:
+            raise DataError(frame.name or "frame", "is a rig's camera's: online calibration takes one camera")
         online = self.config.online
         position = self._pushed
         self._pushed += 1

@@ -585,3 +585,5 @@ def test_a_rig_is_calibrated_through_its_cameras(frames):
     assert result.error.translation_cm < 2.5 and result.error.rotation_deg < 0.4
     with pytest.raises(DataError, match="rig"):
         Calibrator(config=FAST).calibrate([rig[0], *frames[1:]], T_init)
+    with pytest.raises(DataError, match="online calibration takes one camera"):
+        OnlineCalibrator(T_init, config=FAST).push(rig[0])
