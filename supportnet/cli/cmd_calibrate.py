@@ -357,6 +357,11 @@ def run_calibrate(
                 tmp / f"overlay_{_slug(support.name)}.png",
                 _overlay(frames[0], first.initial_T_cam_lidar, first.T_cam_lidar),
             )
+            for path, frame in zip(rig, frames[1 : len(rig) + 1], strict=False):  # the rig's other cameras
+                write_image(
+                    tmp / f"overlay_{_slug(support.name)}_{_slug(Path(path).name)}.png",
+                    _overlay(frame, first.initial_T_cam_lidar, first.T_cam_lidar),
+                )
             shown = support(frames[0])
             if shown is not None:
                 picture = map_picture(shown, f"support ({support.name})")
