@@ -221,7 +221,7 @@ class Calibrator:
         candidates = [int(i) for i in select_frames(len(seq), count * selection.candidates)]
         loaded = {i: seq[i] for i in candidates}
         informations = [
-            contour_information(f.points, f.calibration.camera_extrinsic(T_init), f.K, f.image_size)
+            contour_information(f.points, T_init, f.K, f.image_size, f.calibration.T_cam_rig)
             for f in loaded.values()
         ]
         return [candidates[j] for j in select_informative(informations, count)], loaded
@@ -277,7 +277,9 @@ class Calibrator:
         motions: Mapping[int, ScanMotion] | SequenceMotions | str | None = None,
         on_stage: Callable[[str, float], None] | None = None,
     ) -> CalibrationResult:
-        """Calibrate ``seq`` (a :class:`Sequence` or a list of frames sharing one ``K``).
+        """Calibrate ``seq`` (a :class:`Sequence`, a list of frames sharing one ``K``, or a list of
+        the frames of a rig's cameras, :mod:`calib.data.rig`: ``T_init`` and the answer are then
+        ``T_rig_lidar``).
 
         Args:
             seq: the data; ``config.frames`` of its frames are used (``config.selection``:

@@ -286,7 +286,7 @@ class ContourScore:
         T_cam = self._rig[None] @ T[:, None]  # (C, F, 4, 4) each frame's camera's extrinsic
         KR = self.K @ T_cam[..., :3, :3]  # (C, F, 3, 3)
         Kt = (self.K @ T_cam[..., :3, 3:])[..., 0]  # (C, F, 3)
-        # (C, 1, F, N, 3) per frame: its samples of both kinds through its camera; w is the depth
+        # (C, 2, F, N, 3): each frame's samples of both kinds through its camera; w is the depth
         uvw = torch.einsum("kfnj,cfij->ckfni", self.points, KR) + Kt[:, None, :, None]
         z = uvw[..., 2]
         return uvw[..., :2] / z.clamp_min(1e-3)[..., None], z

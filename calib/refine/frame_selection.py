@@ -40,23 +40,31 @@ class FrameSelectionConfig(BaseModel):
 
 
 def contour_information(
-    points_lidar: np.ndarray, T_cam_lidar: np.ndarray, K: np.ndarray, image_size: tuple[int, int]
+    points_lidar: np.ndarray,
+    T_cam_lidar: np.ndarray,
+    K: np.ndarray,
+    image_size: tuple[int, int],
+    T_cam_rig: np.ndarray | None = None,
 ) -> np.ndarray:
     """``(6, 6)`` information about ``δ = (ρ, ω)`` (metres, radians; camera frame, as the solver's
     ``exp(δ) · T``) from one scan's occluding contours in view, one pixel of noise each.
 
     Args:
-        points_lidar: ``(N, 3+)`` the scan. T_cam_lidar: ``(4, 4)``. K: ``(3, 3)``.
-        image_size: ``(H, W)``.
+        points_lidar: ``(N, 3+)`` the scan. T_cam_lidar: ``(4, 4)`` (a rig's ``T_rig_lidar``
+            with ``T_cam_rig``: ``δ`` is then the rig's, in its frame, so that the information of
+            its cameras adds up). K: ``(3, 3)``. image_size: ``(H, W)``.
+        T_cam_rig: ``(4, 4)`` the camera's pose in its rig, or ``None``.
     """
     across_u = horizontal_edges(points_lidar)
     contours, silhouettes, _ = vertical_edges(points_lidar)
     across_v = np.concatenate([contours, silhouettes])
+    T_cam = T_cam_lidar if T_cam_rig is None else T_cam_rig @ T_cam_lidar
+    rig = None if T_cam_rig is None else torch.as_tensor(T_cam_rig)
     information = np.zeros((6, 6))
     for samples, row in ((across_u, 0), (across_v, 1)):
-        seen = samples[in_view(samples, T_cam_lidar, K, image_size, 0.0)]
-        q = seen @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]
-        J = reprojection_jacobian(torch.as_tensor(q), torch.as_tensor(K))[:, row, :].numpy()
+        seen = samples[in_view(samples, T_cam, K, image_size, 0.0)]
+        q = seen @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]  # the camera's frame, or the rig's
+        J = reprojection_jacobian(torch.as_tensor(q), torch.as_tensor(K), rig)[:, row, :].numpy()
         information += J.T @ J
     return information
 

@@ -165,7 +165,8 @@ def global_search(
     later: Callable[[], np.ndarray] | None = None,
 ) -> GlobalSearchResult:
     """Climb the edge-alignment score with the edge map ``kind`` over ``frames`` (one shared
-    ``K``) from ``T_init``: one extrinsic ``(4, 4)``, or ``(S, 4, 4)`` starts searched together
+    ``K``, or a rig's cameras: ``T_init`` is then ``T_rig_lidar``, steps in the first camera's
+    pixels) from ``T_init``: one extrinsic ``(4, 4)``, or ``(S, 4, 4)`` starts searched together
     (each its own grid, best ``starts`` cells and depth; the answer the best at the finest scale
     of them all). ``later``, if given, returns more such starts; it is called once the first
     ones' grids are scored (so a search can begin while another stage computes its answer), and

@@ -166,8 +166,8 @@ def reprojection_jacobian(
     points: torch.Tensor, K: torch.Tensor, T_cam_rig: torch.Tensor | None = None
 ) -> torch.Tensor:
     """``∂π(K, exp(δ) · q) / ∂δ`` at ``δ = 0``: ``(*, N, 2, 6)`` for ``points q (*, N, 3)`` in the
-    camera frame (``z > 0``); with ``T_cam_rig (N, 4, 4)``, ``∂π(K, T_cam_rig · exp(δ) · q) / ∂δ``
-    for points in a rig's frame (``δ`` a move of the rig).
+    camera frame (``z > 0``); with ``T_cam_rig`` (``(N, 4, 4)`` one per point, or one ``(4, 4)``),
+    ``∂π(K, T_cam_rig · exp(δ) · q) / ∂δ`` for points in a rig's frame (``δ`` a move of the rig).
 
     ``∂(exp(δ) q)/∂δ = [I | −[q]×]`` (translation first, as kornia's ``Se3``), chained with
     :func:`pinhole_jacobian` (by the rig's rotation first): a row ``a`` of ``∂π/∂q`` becomes

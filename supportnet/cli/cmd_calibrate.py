@@ -310,6 +310,10 @@ def run_calibrate(
     by_support = {}
     for name, done in results.items():
         run_dicts = [{"run": k, **r.to_dict()} for k, r in enumerate(done)]
+        for entry in run_dicts if rig else ():  # a rig's frames by their scans' positions in --data
+            entry["frame_indices"] = sorted(
+                {int(positions[i // (len(rig) + 1)]) for i in entry["frame_indices"]}
+            )
         by_support[name] = {
             **run_dicts[0],
             "runs": run_dicts,
@@ -357,9 +361,10 @@ def run_calibrate(
                 tmp / f"overlay_{_slug(support.name)}.png",
                 _overlay(frames[0], first.initial_T_cam_lidar, first.T_cam_lidar),
             )
-            for path, frame in zip(rig, frames[1 : len(rig) + 1], strict=False):  # the rig's other cameras
+            # the rig's other cameras, each under its number (folders may share a name) and name
+            for k, (path, frame) in enumerate(zip(rig, frames[1 : len(rig) + 1], strict=False), 1):
                 write_image(
-                    tmp / f"overlay_{_slug(support.name)}_{_slug(Path(path).name)}.png",
+                    tmp / f"overlay_{_slug(support.name)}_{k}_{_slug(Path(path).name)}.png",
                     _overlay(frame, first.initial_T_cam_lidar, first.T_cam_lidar),
                 )
             shown = support(frames[0])

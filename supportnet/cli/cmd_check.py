@@ -49,19 +49,16 @@ def spread(n: int, count: int) -> list[int]:
 def _overlay(frame, result: CheckResult) -> np.ndarray:
     """The scan on the image under the extrinsic checked and, unless it is good, under ``T*``."""
     e = result.correction
-    panels = [
-        tag(
-            draw_projection(
-                frame.image, project_scan(frame.points, result.T_cam_lidar, frame.K, frame.image_size)
-            ),
-            f"extrinsic checked: {result.verdict}",
-        )
-    ]
+
+    def drawn(T: np.ndarray) -> np.ndarray:  # through the frame's camera where it sits in a rig
+        T = frame.calibration.camera_extrinsic(T)
+        return draw_projection(frame.image, project_scan(frame.points, T, frame.K, frame.image_size))
+
+    panels = [tag(drawn(result.T_cam_lidar), f"extrinsic checked: {result.verdict}")]
     if result.verdict != "good":
-        T = result.suggested_T_cam_lidar
         panels.append(
             tag(
-                draw_projection(frame.image, project_scan(frame.points, T, frame.K, frame.image_size)),
+                drawn(result.suggested_T_cam_lidar),
                 f"suggested correction: {e.rotation_deg:.2f} deg, {e.translation_cm:.1f} cm",
             )
         )

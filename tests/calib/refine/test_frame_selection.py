@@ -70,3 +70,23 @@ def test_calibrator_uses_the_informative_frames(small_urban):
     assert Calibrator(config=spread).calibrate(
         sequence, T_init=frames[0].calibration.T_cam_lidar
     ).frame_indices == [0, 5]
+
+
+def test_a_rig_cameras_information_is_about_the_rigs_move(small_urban):
+    """Known answer: a camera in a rig (``T_cam_rig = L``) tells about the rig's move ``δ_r`` what
+    it tells about its own, ``δ_c = Ad(L) δ_r`` (``exp(δ_c) L = L exp(δ_r)``): its information is
+    ``Ad(L)ᵀ I_c Ad(L)``, so that the informations of a rig's cameras add up."""
+    import cv2
+
+    frame = small_urban[0]
+    T_cam = np.asarray(frame.calibration.T_cam_lidar)
+    L = np.eye(4)
+    L[:3, :3] = cv2.Rodrigues(np.array([0.3, -1.2, 0.4]))[0]
+    L[:3, 3] = [0.5, -0.2, 1.1]
+    T_rig = np.linalg.inv(L) @ T_cam
+    own = contour_information(frame.points, T_cam, frame.K, frame.image_size)
+    R, t = L[:3, :3], L[:3, 3]
+    skew = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    Ad = np.block([[R, skew @ R], [np.zeros((3, 3)), R]])  # twists (ρ, ω), translation first
+    in_rig = contour_information(frame.points, T_rig, frame.K, frame.image_size, L)
+    np.testing.assert_allclose(in_rig, Ad.T @ own @ Ad, rtol=1e-9, atol=1e-6 * np.abs(own).max())

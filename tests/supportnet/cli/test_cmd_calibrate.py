@@ -242,9 +242,15 @@ def test_a_rigs_cameras_need_as_many_frames(still_vineyard, realdata, tmp_path):
 
 def test_a_rig_uses_every_cameras_frame_of_enough_scans(still_vineyard, tmp_path):
     """A rig of one camera twice (the same dataset as --data and --rig): frames = 3 becomes two
-    scans of both cameras, all four frames used, the perturbation undone as for one camera."""
+    scans of both cameras, all four frames used, the perturbation undone as for one camera; the
+    overlays of both cameras written."""
     sequence = still_vineyard / "sequences" / "00"
     out = run_calibrate(sequence, None, "uniform", "perturb:10,2", tmp_path / "cal", FAST, rig=[sequence])
-    assert out["frames"] == 4 and len(out["frame_indices"]) == 4 and out["config"]["frames"] == 4
+    assert out["frames"] == 4 and out["config"]["frames"] == 4
+    assert out["frame_indices"] == [0, 5]  # the scans' positions in --data, both cameras' frames of each
     assert out["error"]["translation_cm"] < 2.5 and out["error"]["rotation_deg"] < 0.4
     np.testing.assert_allclose(out["rig"][0]["T_cam_lidar"], out["rig"][1]["T_cam_lidar"], atol=1e-12)
+    assert {p.name for p in (tmp_path / "cal").glob("overlay_*.png")} == {
+        "overlay_uniform.png",
+        "overlay_uniform_1_00.png",
+    }
