@@ -318,6 +318,8 @@ def calibrate(
         )
     if online and rig:
         raise ConfigError("--rig", "--online calibrates one camera; leave --rig out")
+    if time_offset is not None and rig:
+        raise ConfigError("--rig", "the time offset is modelled for one camera; leave --time-offset out")
     cfg = load_calibrate_config(config)
     if time_offset is not None:
         cfg = cfg.model_copy(update={"time_offset": time_offset_setting(time_offset, cfg.time_offset)})

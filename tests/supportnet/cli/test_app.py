@@ -172,3 +172,14 @@ def test_every_command_that_opens_a_dataset_takes_camera(tmp_path, command):
     assert "no camera 5 (image_5 not found); available cameras: 2" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("extra", [["--online"], ["--time-offset", "estimate"]])
+def test_a_rig_refuses_what_takes_one_camera_in_one_line(tmp_path, extra):
+    write_custom(tmp_path / "a", make_frames())
+    write_custom(tmp_path / "b", make_frames())
+    result = run_cli(
+        "calibrate", "--data", tmp_path / "a", "--rig", tmp_path / "b", "--out", tmp_path / "o", *extra
+    )
+    assert result.returncode == 2 and "--rig" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
