@@ -305,6 +305,9 @@ class Calibrator:
         picks, loaded = self._pick_frames(seq, T_init)
         frames = [loaded[i] if i in loaded else seq[i] for i in picks]
         lap("frames")
+        if frames[0].calibration.T_cam_rig is not None and not isinstance(motions, str):
+            # a rig's frames follow each other camera by camera, not scan by scan: no odometry
+            motions = "a rig's cameras (the time offset is modelled for one camera)"
         timing, timing_note, frames, moving = camera_time(
             self.config, seq, picks, frames, motions, stage1_offset
         )

@@ -34,6 +34,7 @@ _LAZY = {
     "CalibrationResult": "calib.results",
     "OnlineEstimate": "calib.results",
     "CalibrationError": "calib.geometry",
+    "as_rig": "calib.data.rig",
     "Frame": "calib.data.types",
     "Sequence": "calib.data.types",
     "SupportSource": "calib.support.source",

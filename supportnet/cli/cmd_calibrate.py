@@ -268,9 +268,9 @@ def run_calibrate(
                 )
         if init_kind == "file" and (hint := inverse_hint([seq[len(seq) // 2]], np.asarray(init_arg))):
             console.print(f"The initial extrinsic: {hint}", markup=False, highlight=False, soft_wrap=True)
-        motions: SequenceMotions | str = "time_offset.mode: off"
-        if rig:
-            motions = "a rig's cameras (the time offset is modelled for one camera)"
+        motions: SequenceMotions | str | None = "time_offset.mode: off"
+        if rig:  # the Calibrator says why a rig's points stay as measured
+            motions = None
         elif config.time_offset.mode != "off":  # the LiDAR's motion around the used frames, once for all runs
             motions = SequenceMotions(seq, config.time_offset.neighbours, config.time_offset.deskew_rounds)
         coarse = coarse_matcher(config)

@@ -219,6 +219,7 @@ def test_a_rig_of_the_six_nuscenes_cameras_is_calibrated_together(realdata, tmp_
         assert error.translation_cm == pytest.approx(out["error"]["translation_cm"], abs=1e-6)
     summary = (tmp_path / "cal" / "summary.md").read_text()
     assert "A rig of 6 cameras" in summary and "Check of the answer on the rig's 6 cameras" in summary
+    assert "a rig's cameras" in out["time_offset_note"]
     assert len(list((tmp_path / "cal").glob("overlay_uniform*.png"))) == 6  # one per camera
     with pytest.raises(ConfigError, match="--rig.*stage1 takes one camera"):
         run_calibrate(folders[0], None, "uniform", "stage1", tmp_path / "s1", config, rig=folders[1:2])
