@@ -23,6 +23,7 @@ from calib.data import open_dataset
 from calib.data.extrinsic_file import read_extrinsic
 from calib.data.io import write_image
 from calib.data.rig import rig_frames
+from calib.pipeline import select_frames
 from calib.projection import project_scan
 from calib.verify import CheckConfig, CheckResult, check_extrinsic
 from calib.yaml_io import read_yaml, validate
@@ -30,7 +31,7 @@ from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, tag
 
-__all__ = ["CONFIRMS_DEG_CM", "check_line", "confirms", "load_check_config", "run_check", "spread"]
+__all__ = ["CONFIRMS_DEG_CM", "check_line", "confirms", "load_check_config", "run_check"]
 
 
 def load_check_config(path: Path | None = None, **overrides: object) -> CheckConfig:
@@ -39,11 +40,6 @@ def load_check_config(path: Path | None = None, **overrides: object) -> CheckCon
     values = dict(read_yaml(Path(path))) if path is not None else {}
     values.update({k: v for k, v in overrides.items() if v is not None})
     return validate(CheckConfig, values, path if path is not None else "check config")
-
-
-def spread(n: int, count: int) -> list[int]:
-    """``min(count, n)`` positions spread evenly over ``range(n)``, first and last included."""
-    return [int(i) for i in np.unique(np.linspace(0, n - 1, min(count, n)).round().astype(int))]
 
 
 def _overlay(frame, result: CheckResult) -> np.ndarray:
@@ -219,7 +215,8 @@ def run_check(
         tmp = stack.enter_context(atomic_output(out, overwrite, inputs, command="check"))
         seq = stack.enter_context(open_dataset(data, sequence=sequence, camera=camera))
         others = [stack.enter_context(open_dataset(path)) for path in rig]  # one camera's sequence each
-        picks = spread(len(seq), -(-config.frames // (len(rig) + 1)))  # at least `frames` frames
+        # spread over the sequence, at least `frames` frames
+        picks = [int(i) for i in select_frames(len(seq), -(-config.frames // (len(rig) + 1)))]
         with console.status(f"Checking on {len(picks) * (len(rig) + 1)} frame(s)"):
             frames = rig_frames([seq, *others], [data, *rig], picks) if rig else [seq[i] for i in picks]
             result = check_extrinsic(frames, T, config)
