@@ -19,7 +19,7 @@ from calib.data.types import Calibration, Frame
 from calib.data.types import Sequence as DataSequence
 from calib.errors import DataError
 
-__all__ = ["as_rig", "rig_frames", "unknown_reference"]
+__all__ = ["as_rig", "rig_frames", "rig_poses", "unknown_reference"]
 
 
 def as_rig(frames: Sequence[Frame]) -> list[Frame]:
@@ -46,6 +46,19 @@ def as_rig(frames: Sequence[Frame]) -> list[Frame]:
         replace(f, calibration=replace(f.calibration, T_cam_rig=T @ first_inv))
         for f, T in zip(frames, known, strict=True)
     ]
+
+
+def rig_poses(frames: Sequence[Frame]) -> np.ndarray:
+    """``(F, 4, 4)`` each of the frames' (at least one) ``T_cam_rig``: the identity for frames of
+    cameras on their own.
+
+    Raises:
+        DataError: the frames mix a rig's cameras with cameras on their own.
+    """
+    poses = [f.calibration.T_cam_rig for f in frames]
+    if any((T is None) != (poses[0] is None) for T in poses):
+        raise DataError("frames", "mix cameras of a rig (T_cam_rig) with cameras on their own")
+    return np.stack([np.eye(4) if T is None else T for T in poses])
 
 
 def unknown_reference(calibration: Calibration) -> np.ndarray | None:

@@ -78,12 +78,8 @@ class Calibration:
 
     def camera_extrinsic(self, T: np.ndarray) -> np.ndarray:
         """This camera's ``T_cam_lidar (..., 4, 4)`` under the unknown ``T (..., 4, 4)``:
-        ``T_cam_rig · T`` in a rig, ``T`` itself for a camera on its own (numpy or torch)."""
-        if self.T_cam_rig is None:
-            return T
-        if isinstance(T, np.ndarray):
-            return self.T_cam_rig @ T
-        return T.new_tensor(self.T_cam_rig) @ T  # a torch tensor: its dtype and device
+        ``T_cam_rig · T`` in a rig, ``T`` itself for a camera on its own."""
+        return T if self.T_cam_rig is None else self.T_cam_rig @ T
 
 
 def shift_from_projection(

@@ -29,6 +29,7 @@ import torch
 import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field, PositiveInt
 
+from calib.data.rig import rig_poses
 from calib.data.types import Frame
 from calib.errors import DataError, NumericalError
 from calib.features import depth_discontinuities
@@ -213,18 +214,13 @@ class ContourScore:
         if not frames:
             raise DataError("frames", "the check needs at least one frame")
         K = frames[0].K
-        in_rig = frames[0].calibration.T_cam_rig is not None
-        if any((f.calibration.T_cam_rig is not None) != in_rig for f in frames):
-            raise DataError("frames", "mix cameras of a rig (T_cam_rig) with cameras on their own")
-        if not in_rig and any(
+        self._rig = torch.as_tensor(rig_poses(frames))  # (F, 4, 4) T_cam_rig, the identity alone
+        if frames[0].calibration.T_cam_rig is None and any(
             not np.allclose(f.K, K) or f.image_size != frames[0].image_size for f in frames
         ):
             raise DataError("frames", "have different intrinsics or image sizes; check one camera at a time")
         rng = np.random.default_rng(seed)
         self.K = torch.stack([torch.as_tensor(f.K, dtype=torch.float64) for f in frames])  # (F, 3, 3)
-        self._rig = torch.stack(
-            [torch.as_tensor(f.calibration.camera_extrinsic(np.eye(4))) for f in frames]
-        )  # (F, 4, 4) T_cam_rig, the identity for a camera on its own
         self.focal = float(K[0, 0])
         self._blur = [float(f.K[0, 0]) / self.focal for f in frames]
         self.sizes = torch.tensor([f.image_size for f in frames], dtype=torch.float64)  # (F, 2) H, W

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from calib.data.rig import rig_poses
 from calib.data.types import Frame
 from calib.errors import DataError
 from calib.features import depth_discontinuities
@@ -140,9 +141,7 @@ class EdgeAlignment:
         H, W = self.size
         to_grid = torch.diag(torch.tensor([2 / (W - 1), 2 / (H - 1), 1.0], dtype=torch.float64))
         self._project = torch.stack([to_grid @ torch.as_tensor(f.K) for f in frames])  # (F, 3, 3)
-        self._rig = torch.stack(
-            [torch.as_tensor(f.calibration.camera_extrinsic(np.eye(4))) for f in frames]
-        )  # (F, 4, 4) T_cam_rig, the identity for a camera on its own
+        self._rig = torch.as_tensor(rig_poses(frames))  # (F, 4, 4) T_cam_rig, the identity alone
         self._blur = [float(f.K[0, 0] / frames[0].K[0, 0]) for f in frames]
         self.edges = [
             edge_strength(f.image) if kind == "magnitude" else image_edges(f.image)[0] for f in frames

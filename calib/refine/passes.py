@@ -16,6 +16,7 @@ import torch
 from annotated_types import Ge, Le
 from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat
 
+from calib.data.rig import rig_poses
 from calib.data.types import Frame
 from calib.errors import DataError, NumericalError
 from calib.geometry import calibration_error, se3_exp, se3_log
@@ -666,16 +667,13 @@ def refine_passes(
         NumericalError: too few correspondences to fit (from every start, with alternatives).
     """
     K = frames[0].K
-    rigs = [f.calibration.T_cam_rig for f in frames]
-    in_rig = rigs[0] is not None
-    if any((r is not None) != in_rig for r in rigs):
-        raise DataError("frames", "mix cameras of a rig (T_cam_rig) with cameras on their own")
+    rigs = rig_poses(frames)
+    in_rig = frames[0].calibration.T_cam_rig is not None
     if not in_rig and any(not np.allclose(f.K, K) for f in frames):
         raise DataError("frames", "have different intrinsics and cannot share one refinement")
     # a rig's cameras each project through their own K and T_cam_rig; its pixel thresholds are
     # the first camera's
     Ks = np.stack([f.K for f in frames])
-    rigs = np.stack(rigs) if in_rig else None
     rules = config.outliers
     # the check needs residuals the matcher can still measure: beyond its reach they saturate
     reach_px = config.check_below_px * K[0, 0] / min(K[0, 0], config.edge.working_focal_px)
@@ -711,7 +709,7 @@ def refine_passes(
             T,
             config.refine,
             clusters=clusters,
-            T_cam_rig=None if rigs is None else rigs[scans],
+            T_cam_rig=rigs[scans] if in_rig else None,
         )
         if timing is None:
             return solve()

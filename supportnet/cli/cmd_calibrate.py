@@ -28,19 +28,18 @@ from rich.console import Console
 from calib.data import open_dataset
 from calib.data.extrinsic_file import read_extrinsic
 from calib.data.io import write_image
-from calib.data.rig import rig_frames
 from calib.data.types import Frame
 from calib.errors import ConfigError, DataError
 from calib.geometry import perturb
 from calib.init.lidar_odometry import SequenceMotions
 from calib.init.motion_init import initial_calibration, load_stage1_config
-from calib.pipeline import Calibrator, select_frames
+from calib.pipeline import Calibrator
 from calib.projection import project_scan
 from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
 from calib.support.map_files import check_maps_fingerprint
 from calib.verify import CheckResult, check_extrinsic, inverse_hint
-from supportnet.cli.cmd_check import check_line
+from supportnet.cli.cmd_check import check_line, open_rig
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, map_picture
@@ -240,13 +239,11 @@ def run_calibrate(
     start = time.perf_counter()
     with ExitStack() as stack:
         seq = stack.enter_context(open_dataset(data, sequence=sequence, camera=camera))
-        others = [stack.enter_context(open_dataset(path)) for path in rig]  # one camera's sequence each
         for maps in offline_maps_folders(supports):
             check_maps_fingerprint(maps, seq)
         calibrated = seq
-        if rig:  # every camera's frame of as many scans as make at least `frames` frames
-            positions = select_frames(len(seq), -(-config.frames // (len(rig) + 1)))
-            calibrated = rig_frames([seq, *others], [data, *rig], positions)
+        if rig:
+            positions, calibrated = open_rig(stack, seq, data, rig, config.frames)
             config = config.model_copy(update={"frames": len(calibrated)})  # all of them
         T_ref = seq.calibration.T_cam_lidar
         if init_kind == "perturb" and T_ref is None:

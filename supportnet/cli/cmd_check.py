@@ -23,6 +23,8 @@ from calib.data import open_dataset
 from calib.data.extrinsic_file import read_extrinsic
 from calib.data.io import write_image
 from calib.data.rig import rig_frames
+from calib.data.types import Frame
+from calib.data.types import Sequence as DataSequence
 from calib.pipeline import select_frames
 from calib.projection import project_scan
 from calib.verify import CheckConfig, CheckResult, check_extrinsic
@@ -31,7 +33,7 @@ from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, tag
 
-__all__ = ["CONFIRMS_DEG_CM", "check_line", "confirms", "load_check_config", "run_check"]
+__all__ = ["CONFIRMS_DEG_CM", "check_line", "confirms", "load_check_config", "open_rig", "run_check"]
 
 
 def load_check_config(path: Path | None = None, **overrides: object) -> CheckConfig:
@@ -40,6 +42,18 @@ def load_check_config(path: Path | None = None, **overrides: object) -> CheckCon
     values = dict(read_yaml(Path(path))) if path is not None else {}
     values.update({k: v for k, v in overrides.items() if v is not None})
     return validate(CheckConfig, values, path if path is not None else "check config")
+
+
+def open_rig(
+    stack: ExitStack, seq: DataSequence, data: Path, rig: Sequence[Path], count: int
+) -> tuple[list[int], list[Frame]]:
+    """The scan positions and the frames of ``data``'s camera (``seq``) and of its rig's other
+    cameras (each ``rig`` path a dataset of one camera, opened in ``stack``): every camera's frame
+    of as many scans, spread over ``seq``, as make at least ``count`` frames
+    (:func:`calib.data.rig.rig_frames`)."""
+    others = [stack.enter_context(open_dataset(path)) for path in rig]
+    positions = [int(i) for i in select_frames(len(seq), -(-count // (len(rig) + 1)))]
+    return positions, rig_frames([seq, *others], [data, *rig], positions)
 
 
 def _overlay(frame, result: CheckResult) -> np.ndarray:
@@ -214,11 +228,12 @@ def run_check(
     with ExitStack() as stack:
         tmp = stack.enter_context(atomic_output(out, overwrite, inputs, command="check"))
         seq = stack.enter_context(open_dataset(data, sequence=sequence, camera=camera))
-        others = [stack.enter_context(open_dataset(path)) for path in rig]  # one camera's sequence each
-        # spread over the sequence, at least `frames` frames
-        picks = [int(i) for i in select_frames(len(seq), -(-config.frames // (len(rig) + 1)))]
-        with console.status(f"Checking on {len(picks) * (len(rig) + 1)} frame(s)"):
-            frames = rig_frames([seq, *others], [data, *rig], picks) if rig else [seq[i] for i in picks]
+        if rig:
+            picks, frames = open_rig(stack, seq, data, rig, config.frames)
+        else:
+            picks = [int(i) for i in select_frames(len(seq), config.frames)]
+            frames = [seq[i] for i in picks]
+        with console.status(f"Checking on {len(frames)} frame(s)"):
             result = check_extrinsic(frames, T, config)
         output = {
             **result.to_dict(),
