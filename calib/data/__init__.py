@@ -9,24 +9,26 @@ from calib.data.custom import is_custom, read_custom
 from calib.data.kitti_object import is_kitti_object, read_kitti_object
 from calib.data.kitti_odometry import is_kitti_odometry, read_kitti_odometry
 from calib.data.kitti_raw import is_kitti_raw, read_kitti_raw
+from calib.data.nuscenes import is_nuscenes, read_nuscenes
 from calib.data.rosbag import BagSequence, BagTopics, is_bag
 from calib.data.types import Calibration, Frame, Sequence, refuse_sequence
 from calib.errors import DataError
 
 __all__ = ["LAYOUTS", "Calibration", "Frame", "Sequence", "detect_layout", "open_dataset"]
 
-LAYOUTS = ("rosbag", "kitti_odometry", "kitti_raw", "kitti_object", "custom")
+LAYOUTS = ("rosbag", "kitti_odometry", "kitti_raw", "kitti_object", "nuscenes", "custom")
 _DETECTORS = {
     "rosbag": is_bag,
     "kitti_odometry": is_kitti_odometry,
     "kitti_raw": is_kitti_raw,
     "kitti_object": is_kitti_object,
+    "nuscenes": is_nuscenes,
     "custom": is_custom,
 }
 _EXPECTED = (
     "a KITTI odometry root (sequences/NN) or sequence folder, a KITTI raw drive or date folder, "
-    "a KITTI object split (calib/, image_2/, velodyne/), a custom folder (camera/, lidar/, "
-    "calibration.yaml), or a ROS bag (.bag file or ROS 2 folder)"
+    "a KITTI object split (calib/, image_2/, velodyne/), a nuScenes root (v1.0-*/ tables, samples/), "
+    "a custom folder (camera/, lidar/, calibration.yaml), or a ROS bag (.bag file or ROS 2 folder)"
 )
 
 
@@ -54,13 +56,15 @@ def open_dataset(
 
     Args:
         path: dataset folder or bag.
-        sequence: which sequence (KITTI odometry) or drive (KITTI raw) where the path holds
-            several. Layouts holding one sequence (KITTI object, custom, a bag) refuse it.
+        sequence: which sequence (KITTI odometry), drive (KITTI raw) or scene (nuScenes: name or
+            token) where the path holds several. Layouts holding one sequence (KITTI object,
+            custom, a bag) refuse it.
         camera: which camera where the layout has several: a KITTI index (``2``, ``"2"``,
-            ``"image_02"``) or a bag's image topic (``"/cam_left/image_raw"``). ``None``: the
-            layout's default (KITTI camera 2, or the only one present; a bag's only image topic).
-            One that is not there is refused with a line listing those that are. The custom
-            layout has one camera and refuses it.
+            ``"image_02"``), a bag's image topic (``"/cam_left/image_raw"``) or a nuScenes channel
+            (``"CAM_BACK"``). ``None``: the layout's default (KITTI camera 2, or the only one
+            present; a bag's only image topic; nuScenes' ``CAM_FRONT``). One that is not there
+            is refused with a line listing those that are. The custom layout has one camera and
+            refuses it.
         strict: raise on the first listed problem (unpaired files, empty or truncated scans,
             NaN or non-increasing time stamps, NaN poses); ``info`` passes ``False`` to report
             them all instead.
@@ -78,6 +82,8 @@ def open_dataset(
         seq = read_kitti_odometry(path, sequence, camera=camera)
     elif layout == "kitti_raw":
         seq = read_kitti_raw(path, sequence, camera=camera)
+    elif layout == "nuscenes":
+        seq = read_nuscenes(path, sequence, camera=camera)
     elif layout == "kitti_object":
         refuse_sequence(path, sequence, "a KITTI object split")
         seq = read_kitti_object(path, camera=camera)

@@ -28,6 +28,8 @@ __all__ = [
     "read_pcd_fields",
     "read_point_times",
     "read_scan",
+    "require_file",
+    "scanline_order",
     "validate_points",
     "write_bin",
     "write_image",
@@ -39,7 +41,7 @@ SCAN_SUFFIXES = (".bin", ".pcd", ".npy")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
-def _require_file(path: Path) -> None:
+def require_file(path: Path) -> None:
     if not path.is_file():
         raise DataError(path, "file not found" if not path.exists() else "not a regular file")
 
@@ -71,7 +73,7 @@ def validate_points(points: np.ndarray, path: Path, drop_nonfinite: bool = False
 def read_bin(path: Path) -> np.ndarray:
     """KITTI velodyne ``.bin``: float32 ``x, y, z, reflectance`` per point."""
     path = Path(path)
-    _require_file(path)
+    require_file(path)
     size = path.stat().st_size
     if size % 16:
         raise DataError(path, f"truncated: {size} bytes is not a multiple of 16 (4 float32 per point)")
@@ -151,7 +153,7 @@ def read_pcd_fields(path: Path) -> tuple[dict[str, np.ndarray], int]:
         ``{field: (N,) or (N, COUNT) array}`` and the cloud's ``HEIGHT`` (> 1 = organised).
     """
     path = Path(path)
-    _require_file(path)
+    require_file(path)
     raw = path.read_bytes()
     header, offset = _pcd_header(raw, path)
     try:
@@ -225,7 +227,7 @@ def write_pcd(path: Path, points: np.ndarray) -> None:
 def read_npy_scan(path: Path) -> np.ndarray:
     """A ``.npy`` array ``(N, 3)`` or ``(N, >=4)``; the fourth column is intensity."""
     path = Path(path)
-    _require_file(path)
+    require_file(path)
     try:
         array = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
@@ -252,7 +254,7 @@ def read_scan(path: Path) -> np.ndarray:
 def _read_per_point(path: Path, n_points: int, what: str) -> np.ndarray:
     """A raw file of one 4-byte value per point, checked against the scan's length."""
     path = Path(path)
-    _require_file(path)
+    require_file(path)
     size = path.stat().st_size
     if size != 4 * n_points:
         raise DataError(path, f"holds {size / 4:g} {what} for a scan of {n_points} points")
@@ -279,7 +281,7 @@ def write_label(path: Path, labels: np.ndarray, instances: np.ndarray | None = N
 
 
 def _decode_image(path: Path, flags: int) -> np.ndarray:
-    _require_file(path)
+    require_file(path)
     buffer = np.fromfile(path, dtype=np.uint8)
     level = cv2.utils.logging.getLogLevel()
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # we raise our own error
@@ -334,7 +336,7 @@ def read_kv_file(path: Path) -> dict[str, np.ndarray | str]:
     Numeric values become float64 arrays; other values (``calib_time``) stay strings.
     """
     path = Path(path)
-    _require_file(path)
+    require_file(path)
     result: dict[str, np.ndarray | str] = {}
     for number, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
         if not line.strip():
@@ -379,3 +381,12 @@ def atomic_write_text(path: Path, text: str) -> None:
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     tmp.write_text(text)
     tmp.replace(path)
+
+
+def scanline_order(points_lidar: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """``(N,)`` indices putting a scan stored in firing order (every laser of a column, then the
+    next column: nuScenes, PJLab) into scan-line order (ring by ring, each by azimuth), the order
+    KITTI's Velodyne scans are stored in and :func:`calib.features.depth_discontinuities` reads
+    neighbours from when it gets no ring."""
+    xyz = np.asarray(points_lidar, np.float64)
+    return np.lexsort((np.arctan2(xyz[:, 1], xyz[:, 0]), np.asarray(ring)))

@@ -6,6 +6,7 @@ helpers write small converted copies into a folder the caller owns (a temporary 
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import shutil
@@ -16,7 +17,7 @@ import numpy as np
 import yaml
 
 from calib.data import Frame, open_dataset
-from calib.data.io import format_kv_line, read_kv_file, read_pcd_fields, write_bin
+from calib.data.io import format_kv_line, read_kv_file, read_pcd_fields, scanline_order, write_bin
 
 __all__ = [
     "AMZ_DRIVE",
@@ -30,9 +31,9 @@ __all__ = [
     "custom_from_pjlab_scanlines",
     "kitti_object_from_cvml",
     "kitti_object_from_mmdet",
+    "nuscenes_from_mmdet",
     "real_scenes",
     "realdata_root",
-    "scanline_order",
 ]
 
 AMZ_DRIVE = "amz_kitti_raw_0928/data/0928-KITTI-dataset"
@@ -120,15 +121,6 @@ def real_scenes(realdata: Path, workdir: Path) -> list[tuple[str, Frame, np.ndar
     return scenes
 
 
-def scanline_order(points_lidar: np.ndarray, ring: np.ndarray) -> np.ndarray:
-    """``(N,)`` indices putting a scan stored in firing order (every laser of a column, then the
-    next column: nuScenes, PJLab) into scan-line order (ring by ring, each by azimuth), the order
-    KITTI's Velodyne scans are stored in and :func:`calib.features.depth_discontinuities` reads
-    neighbours from when it gets no ring."""
-    xyz = np.asarray(points_lidar, np.float64)
-    return np.lexsort((np.arctan2(xyz[:, 1], xyz[:, 0]), np.asarray(ring)))
-
-
 def kitti_object_from_cvml(realdata: Path, out: Path) -> Path:
     """Link cvml's KITTI object frame 000114 (full scan, colour camera 2, KITTI object file
     formats under other names) into a KITTI object split. Returns the split folder."""
@@ -173,6 +165,106 @@ def custom_from_nuscenes(realdata: Path, camera: str, out: Path) -> Path:
         "T_cam_lidar": np.asarray(cam["lidar2cam"], np.float64).tolist(),
     }
     (out / "calibration.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
+    return out
+
+
+def nuscenes_from_mmdet(realdata: Path, out: Path) -> Path:
+    """Write the mmdet3d nuScenes sample in the devkit's layout (``v1.0-mini/`` tables, one scene
+    of one sample, and ``samples/``), as the nuScenes reader takes it. The pickle holds each
+    sensor's ``cam2ego`` / ``lidar2ego``, the car's pose at the sweep's stamp and each camera's
+    ``lidar2cam`` with the car's motion up to its exposure folded in; the car's pose at each
+    camera's time is what makes that chain (``T_world_ego(t_cam) = T_world_ego(t_lidar) ·
+    T_ego_lidar · lidar2cam⁻¹ · cam2ego⁻¹``), so the devkit's projection of the written tables is
+    the pickle's. Returns the data root."""
+    from scipy.spatial.transform import Rotation
+
+    src = Path(realdata) / NUSCENES
+    with open(next(src.glob("*.pkl")), "rb") as handle:
+        info = pickle.load(handle)["data_list"][0]
+    out = Path(out)
+    tables = {
+        name: [] for name in ("scene", "sample", "sample_data", "calibrated_sensor", "sensor", "ego_pose")
+    }
+
+    def record(T: np.ndarray, **fields: object) -> dict:
+        x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+        return {**fields, "translation": T[:3, 3].tolist(), "rotation": [w, x, y, z]}
+
+    sample = "sample0"
+    tables["scene"].append(
+        {
+            "token": "scene0",
+            "name": "scene-mmdet3d",
+            "nbr_samples": 1,
+            "first_sample_token": sample,
+            "last_sample_token": sample,
+        }
+    )
+    tables["sample"].append(
+        {
+            "token": sample,
+            "timestamp": round(info["timestamp"] * 1e6),
+            "prev": "",
+            "next": "",
+            "scene_token": "scene0",
+        }
+    )
+    T_world_ego = np.asarray(info["ego2global"], np.float64)
+    T_ego_lidar = np.asarray(info["lidar_points"]["lidar2ego"], np.float64)
+    sensors = [
+        (
+            "LIDAR_TOP",
+            "lidar",
+            info["lidar_points"]["lidar_path"],
+            info["timestamp"],
+            T_ego_lidar,
+            None,
+            T_world_ego,
+        )
+    ]
+    for camera in NUSCENES_CAMERAS:
+        cam = info["images"][camera]
+        T_ego_cam = np.asarray(cam["cam2ego"], np.float64)
+        lidar2cam = np.asarray(cam["lidar2cam"], np.float64)
+        T_world_ego_cam = T_world_ego @ T_ego_lidar @ np.linalg.inv(lidar2cam) @ np.linalg.inv(T_ego_cam)
+        intrinsic = np.asarray(cam["cam2img"], np.float64)[:3, :3].tolist()
+        sensors.append(
+            (camera, "camera", cam["img_path"], cam["timestamp"], T_ego_cam, intrinsic, T_world_ego_cam)
+        )
+    for channel, modality, file, stamp, T_ego_sensor, intrinsic, T_world in sensors:
+        tables["sensor"].append({"token": f"sensor_{channel}", "channel": channel, "modality": modality})
+        tables["calibrated_sensor"].append(
+            record(
+                T_ego_sensor,
+                token=f"calib_{channel}",
+                sensor_token=f"sensor_{channel}",
+                camera_intrinsic=intrinsic or [],
+            )
+        )
+        stamp_us = round(stamp * 1e6)
+        tables["ego_pose"].append(record(T_world, token=f"ego_{channel}", timestamp=stamp_us))
+        filename = f"samples/{channel}/{Path(file).name}"
+        (out / filename).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src / Path(file).name, out / filename)
+        tables["sample_data"].append(
+            {
+                "token": f"data_{channel}",
+                "sample_token": sample,
+                "ego_pose_token": f"ego_{channel}",
+                "calibrated_sensor_token": f"calib_{channel}",
+                "timestamp": stamp_us,
+                "fileformat": "pcd" if modality == "lidar" else "jpg",
+                "is_key_frame": True,
+                "height": 0 if modality == "lidar" else 900,
+                "width": 0 if modality == "lidar" else 1600,
+                "filename": filename,
+                "prev": "",
+                "next": "",
+            }
+        )
+    (out / "v1.0-mini").mkdir(parents=True, exist_ok=True)
+    for name, records in tables.items():
+        (out / "v1.0-mini" / f"{name}.json").write_text(json.dumps(records, indent=1))
     return out
 
 

@@ -270,15 +270,16 @@ def head_digest(path: Path, size: int = SAMPLE_BYTES) -> str:
         return "unreadable"
 
 
-def _listing_problems(paths: list[Path], kind: str) -> list[str]:
-    """Cheap checks without reading: empty files and truncated ``.bin`` scans."""
+def _listing_problems(paths: list[Path], kind: str, row_bytes: int = 16) -> list[str]:
+    """Cheap checks without reading: empty files and truncated ``.bin`` scans (``row_bytes`` a
+    point)."""
     problems = []
     for path in paths:
         size = path.stat().st_size
         if size == 0:
             problems.append(f"{path}: empty {kind} file")
-        elif kind == "scan" and path.suffix == ".bin" and size % 16:
-            problems.append(f"{path}: truncated scan ({size} bytes, not a multiple of 16)")
+        elif kind == "scan" and path.suffix == ".bin" and size % row_bytes:
+            problems.append(f"{path}: truncated scan ({size} bytes, not a multiple of {row_bytes})")
     return problems
 
 
@@ -332,6 +333,9 @@ class FileSequence(Sequence):
         camera: which camera the images come from (see :attr:`Sequence.camera`).
     """
 
+    scan_row_bytes = 16
+    """Bytes of one point in a ``.bin`` scan (KITTI's four float32), for the listing's check."""
+
     def __init__(
         self,
         name: str,
@@ -360,7 +364,7 @@ class FileSequence(Sequence):
         self.notes = list(notes or [])
         self.problems = list(problems or [])
         self.problems += _listing_problems(self.image_paths, "image")
-        self.problems += _listing_problems(self.scan_paths, "scan")
+        self.problems += _listing_problems(self.scan_paths, "scan", self.scan_row_bytes)
         self.label_paths = label_paths or [None] * n
         self.image_label_paths = image_label_paths or [None] * n
         self.point_time_paths = point_time_paths or [None] * n
