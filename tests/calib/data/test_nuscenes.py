@@ -76,7 +76,8 @@ def write_devkit(root, samples=3, scenes=("scene-0001",), drop=None):
                 )  # fmt: skip
                 tables["sample_data"].append(
                     {"token": f"d_{kind}_{token}", "sample_token": token,
-                     "ego_pose_token": f"e_{kind}_{token}", "calibrated_sensor_token": calib, "timestamp": stamp, "is_key_frame": True,
+                     "ego_pose_token": f"e_{kind}_{token}", "calibrated_sensor_token": calib,
+                     "timestamp": stamp, "is_key_frame": True,
                      "height": 120, "width": 160, "filename": name, "prev": "", "next": ""}
                 )  # fmt: skip
                 (root / name).parent.mkdir(parents=True, exist_ok=True)
