@@ -71,14 +71,15 @@ def unknown_reference(calibration: Calibration) -> np.ndarray | None:
 
 
 def rig_frames(
-    sequences: Sequence[DataSequence], paths: Sequence[Path], positions: Sequence[int]
+    sequences: Sequence[DataSequence], paths: Sequence[str | Path], positions: Sequence[int]
 ) -> list[Frame]:
     """The frames at ``positions`` of a rig's cameras, one sequence each (the same scans, paired
     by position), every camera's frame of each scan together, in one rig whose frame is the
     first camera's (:func:`as_rig`).
 
     Raises:
-        DataError: the sequences (read from ``paths``) hold different numbers of frames.
+        DataError: the sequences (read from ``paths``, or named so) hold different numbers of
+            frames.
     """
     lengths = [len(s) for s in sequences]
     if len(set(lengths)) > 1:

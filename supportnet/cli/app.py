@@ -16,6 +16,8 @@ from supportnet.cli.options import (
     Milliseconds,
     Overwrite,
     Rig,
+    RigCameraOption,
+    SequenceName,
     in_range,
     seed_of,
     time_offset_setting,
@@ -128,9 +130,7 @@ def synth(
 @app.command()
 def info(
     data: Annotated[Path, typer.Argument(help="Dataset folder or ROS bag.")],
-    sequence: Annotated[
-        str | None, typer.Option(help="Sequence (KITTI odometry) or drive (KITTI raw).")
-    ] = None,
+    sequence: SequenceName = None,
     camera: Camera = None,
     check_all: Annotated[
         bool, typer.Option("--check-all", help="Read every frame, not only the first.")
@@ -153,7 +153,7 @@ class MatcherName(str, Enum):
 def maps(
     data: Annotated[Path, typer.Option(help="Dataset with a reference calibration.")],
     out: Annotated[Path, typer.Option(help="Maps folder to write.")],
-    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    sequence: SequenceName = None,
     matcher: Annotated[
         MatcherName | None, typer.Option(help="Stage 2 matcher (default: the config's).")
     ] = None,
@@ -225,7 +225,7 @@ def predict(
     data: Annotated[Path, typer.Option(help="Dataset (any supported layout).")],
     out: Annotated[Path, typer.Option(help="Folder of predicted maps to write.")],
     model: Annotated[Path | None, typer.Option(help="ONNX model (default: the shipped one).")] = None,
-    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    sequence: SequenceName = None,
     maps: Annotated[
         Path | None, typer.Option(help="Offline maps of this sequence: score the predictions against them.")
     ] = None,
@@ -242,7 +242,7 @@ def predict(
 def init_calib(
     data: Annotated[Path, typer.Option(help="Dataset (any supported layout) with motion.")],
     out: Annotated[Path, typer.Option(help="Folder to write.")],
-    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    sequence: SequenceName = None,
     config: Annotated[
         Path | None, typer.Option(help="Stage 1 config (default: the packaged init_calib.yaml).")
     ] = None,
@@ -261,7 +261,7 @@ def init_calib(
 def calibrate(
     data: Annotated[Path, typer.Option(help="Dataset (any supported layout).")],
     out: Annotated[Path, typer.Option(help="Report folder to write.")],
-    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    sequence: SequenceName = None,
     support: Annotated[
         str, typer.Option(help="uniform, offline:MAPS, onnx[:MODEL]; comma-separated for paired runs.")
     ] = "uniform",
@@ -307,6 +307,7 @@ def calibrate(
         ),
     ] = True,
     rig: Rig = None,
+    rig_camera: RigCameraOption = None,
 ) -> None:
     """Stage 4: support-guided (or uniform) sampling and weighted SE(3) refinement, in passes."""
     from calib.refine.passes import load_calibrate_config
@@ -316,9 +317,9 @@ def calibrate(
         raise ConfigError(
             "--runs", "--online calibrates one stream from one start; run it again with another --seed"
         )
-    if online and rig:
-        raise ConfigError("--rig", "--online calibrates one camera; leave --rig out")
-    if time_offset is not None and rig:
+    if online and (rig or rig_camera):
+        raise ConfigError("--rig", "--online calibrates one camera; leave --rig / --rig-camera out")
+    if time_offset is not None and (rig or rig_camera):
         raise ConfigError("--rig", "the time offset is modelled for one camera; leave --time-offset out")
     cfg = load_calibrate_config(config)
     if time_offset is not None:
@@ -341,6 +342,7 @@ def calibrate(
         camera=camera,
         check=check,
         rig=rig or (),
+        rig_camera=rig_camera or (),
     )
 
 
@@ -351,7 +353,7 @@ def check(
         Path, typer.Option(help="T_cam_lidar to check: a result.json or a text file of 12 or 16 numbers.")
     ],
     out: Annotated[Path, typer.Option(help="Folder to write.")],
-    sequence: Annotated[str | None, typer.Option(help="Sequence (KITTI odometry) or drive.")] = None,
+    sequence: SequenceName = None,
     frames: Annotated[
         int | None,
         typer.Option(
@@ -363,6 +365,7 @@ def check(
     camera: Camera = None,
     overwrite: Overwrite = False,
     rig: Rig = None,
+    rig_camera: RigCameraOption = None,
 ) -> None:
     """Is this extrinsic right? No ground truth needed: a verdict (good, suspect, bad), a score
     per frame, the smallest error this data shows, a suggested correction and an overlay.
@@ -370,7 +373,17 @@ def check(
     from supportnet.cli.cmd_check import load_check_config, run_check
 
     cfg = load_check_config(config, frames=frames)
-    result = run_check(data, sequence, extrinsic, out, cfg, overwrite, camera=camera, rig=rig or ())
+    result = run_check(
+        data,
+        sequence,
+        extrinsic,
+        out,
+        cfg,
+        overwrite,
+        camera=camera,
+        rig=rig or (),
+        rig_camera=rig_camera or (),
+    )
     raise typer.Exit(result["exit_code"])
 
 

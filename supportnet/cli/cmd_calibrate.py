@@ -39,7 +39,7 @@ from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
 from calib.support.map_files import check_maps_fingerprint
 from calib.verify import CheckResult, check_extrinsic, inverse_hint
-from supportnet.cli.cmd_check import check_line, open_rig
+from supportnet.cli.cmd_check import RigCamera, check_line, open_rig, rig_cameras
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, map_picture
@@ -148,8 +148,8 @@ def _markdown(result: dict) -> str:
     if rig is not None:
         lines += [
             "",
-            f"A rig of {len(rig)} cameras calibrated together: the answer is {result['data']}'s "
-            "camera's extrinsic; each camera's is in result.json's rig.",
+            f"A rig of {len(rig)} cameras calibrated together: the answer is "
+            f"{rig[0]['camera'] or result['data']}'s extrinsic; each camera's is in result.json's rig.",
         ]
     if result["check"] is not None:
         cameras = f" on the rig's {len(rig)} cameras" if rig is not None else ""
@@ -218,16 +218,19 @@ def run_calibrate(
     camera: int | str | None = None,
     check: bool = True,
     rig: Sequence[Path] = (),
+    rig_camera: Sequence[str] = (),
 ) -> dict:
     """Paired runs of Stage 4 for every support, the top-level answer checked (``check``);
     returns what ``result.json`` holds. ``rig``: datasets of the other cameras of ``data``'s rig
-    (the same scans, paired by position), calibrated together with it (:mod:`calib.data.rig`):
-    the answer is ``data``'s camera's extrinsic, each other camera's follows from it."""
+    (the same scans, paired by position), ``rig_camera``: other cameras of ``data``'s own dataset,
+    calibrated together with it (:mod:`calib.data.rig`): the answer is ``data``'s camera's
+    extrinsic, each other camera's follows from it."""
     console = console or make_console()
     inputs = [data, *rig, *support_paths(supports_text)]
     if init_text.startswith("file:"):
         inputs.append(Path(init_text[len("file:") :]))
     claim_output(out, overwrite, inputs)
+    rig = rig_cameras(data, sequence, rig, rig_camera)
     if runs < 1:
         raise ConfigError("--runs", f"must be at least 1, got {runs}")
     init_kind, init_arg = parse_init(init_text)
@@ -342,8 +345,10 @@ def run_calibrate(
         "rig": None
         if cameras is None
         else [
-            {"data": str(path), "T_cam_lidar": (T_cam_rig @ first.T_cam_lidar).tolist()}
-            for path, T_cam_rig in zip([data, *rig], cameras, strict=True)
+            {**member.to_dict(), "T_cam_lidar": (T_cam_rig @ first.T_cam_lidar).tolist()}
+            for member, T_cam_rig in zip(
+                [RigCamera(Path(data), camera, sequence), *rig], cameras, strict=True
+            )
         ],
         "config": config.model_dump(mode="json"),
         "wall_s": time.perf_counter() - start,
@@ -359,9 +364,9 @@ def run_calibrate(
                 _overlay(frames[0], first.initial_T_cam_lidar, first.T_cam_lidar),
             )
             # the rig's other cameras, each under its number (folders may share a name) and name
-            for k, (path, frame) in enumerate(zip(rig, frames[1 : len(rig) + 1], strict=False), 1):
+            for k, (member, frame) in enumerate(zip(rig, frames[1 : len(rig) + 1], strict=False), 1):
                 write_image(
-                    tmp / f"overlay_{_slug(support.name)}_{k}_{_slug(Path(path).name)}.png",
+                    tmp / f"overlay_{_slug(support.name)}_{k}_{_slug(member.name)}.png",
                     _overlay(frame, first.initial_T_cam_lidar, first.T_cam_lidar),
                 )
             shown = support(frames[0])

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,16 @@ from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, resolved_config, write_json
 from supportnet.report.pictures import draw_projection, tag
 
-__all__ = ["CONFIRMS_DEG_CM", "check_line", "confirms", "load_check_config", "open_rig", "run_check"]
+__all__ = [
+    "CONFIRMS_DEG_CM",
+    "RigCamera",
+    "check_line",
+    "confirms",
+    "load_check_config",
+    "open_rig",
+    "rig_cameras",
+    "run_check",
+]
 
 
 def load_check_config(path: Path | None = None, **overrides: object) -> CheckConfig:
@@ -44,16 +54,47 @@ def load_check_config(path: Path | None = None, **overrides: object) -> CheckCon
     return validate(CheckConfig, values, path if path is not None else "check config")
 
 
+@dataclass(frozen=True)
+class RigCamera:
+    """One more camera of ``--data``'s rig: a dataset of one camera (``--rig PATH``), or another
+    camera of ``--data``'s own dataset (``--rig-camera NAME``: ``camera`` and ``sequence`` set)."""
+
+    path: Path
+    camera: str | None = None
+    sequence: str | None = None
+
+    @property
+    def name(self) -> str:
+        """The camera's name in overlay names."""
+        return self.camera or self.path.name
+
+    @property
+    def label(self) -> str:
+        """The camera in messages."""
+        return str(self.path) if self.camera is None else f"{self.path} ({self.camera})"
+
+    def to_dict(self) -> dict:
+        return {"data": str(self.path), "camera": self.camera}
+
+
+def rig_cameras(
+    data: Path, sequence: str | None, paths: Sequence[Path] = (), names: Sequence[str] = ()
+) -> list[RigCamera]:
+    """The rig's other cameras: the datasets at ``paths``, then the cameras ``names`` of
+    ``data``'s own dataset (its ``sequence``)."""
+    return [RigCamera(Path(p)) for p in paths] + [RigCamera(Path(data), str(n), sequence) for n in names]
+
+
 def open_rig(
-    stack: ExitStack, seq: DataSequence, data: Path, rig: Sequence[Path], count: int
+    stack: ExitStack, seq: DataSequence, data: Path, rig: Sequence[RigCamera], count: int
 ) -> tuple[list[int], list[Frame]]:
     """The scan positions and the frames of ``data``'s camera (``seq``) and of its rig's other
-    cameras (each ``rig`` path a dataset of one camera, opened in ``stack``): every camera's frame
-    of as many scans, spread over ``seq``, as make at least ``count`` frames
-    (:func:`calib.data.rig.rig_frames`)."""
-    others = [stack.enter_context(open_dataset(path)) for path in rig]
+    cameras (each opened in ``stack``): every camera's frame of as many scans, spread over
+    ``seq``, as make at least ``count`` frames (:func:`calib.data.rig.rig_frames`)."""
+    others = [stack.enter_context(open_dataset(c.path, sequence=c.sequence, camera=c.camera)) for c in rig]
     positions = [int(i) for i in select_frames(len(seq), -(-count // (len(rig) + 1)))]
-    return positions, rig_frames([seq, *others], [data, *rig], positions)
+    names = [f"{data} ({seq.camera})" if seq.camera else str(data), *(c.label for c in rig)]
+    return positions, rig_frames([seq, *others], names, positions)
 
 
 def _overlay(frame, result: CheckResult) -> np.ndarray:
@@ -215,21 +256,23 @@ def run_check(
     console: Console | None = None,
     camera: str | None = None,
     rig: Sequence[Path] = (),
+    rig_camera: Sequence[str] = (),
 ) -> dict:
     """Check the extrinsic in ``extrinsic`` on ``data``; returns what ``check.json`` holds (its
     ``exit_code`` is the command's). ``rig``: datasets of the other cameras of ``data``'s rig
-    (the same scans, paired by position), checked together with it (:mod:`calib.data.rig`): the
-    extrinsic is ``data``'s camera's."""
+    (the same scans, paired by position), ``rig_camera``: other cameras of ``data``'s own dataset,
+    checked together with it (:mod:`calib.data.rig`): the extrinsic is ``data``'s camera's."""
     console = console or make_console()
     config = config if config is not None else CheckConfig()
     T = read_extrinsic(extrinsic)
     inputs = [data, *rig, extrinsic]
     claim_output(Path(out), overwrite, inputs)
+    members = rig_cameras(data, sequence, rig, rig_camera)
     with ExitStack() as stack:
         tmp = stack.enter_context(atomic_output(out, overwrite, inputs, command="check"))
         seq = stack.enter_context(open_dataset(data, sequence=sequence, camera=camera))
-        if rig:
-            picks, frames = open_rig(stack, seq, data, rig, config.frames)
+        if members:
+            picks, frames = open_rig(stack, seq, data, members, config.frames)
         else:
             picks = [int(i) for i in select_frames(len(seq), config.frames)]
             frames = [seq[i] for i in picks]
@@ -242,7 +285,7 @@ def run_check(
             "camera": camera,
             "extrinsic": str(extrinsic),
             "frame_indices": picks,
-            "rig": [str(path) for path in rig] or None,
+            "rig": [c.to_dict() for c in members] or None,
         }
         write_json(tmp / "check.json", output)
         (tmp / "check.md").write_text(_markdown(output))

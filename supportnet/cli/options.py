@@ -25,7 +25,15 @@ Camera = Annotated[
     str | None,
     typer.Option(
         help="Camera where the dataset has several: a KITTI index (0-3; default 2, the left colour "
-        "camera) or a ROS bag's image topic (default: its only one).",
+        "camera), a ROS bag's image topic (default: its only one) or a nuScenes channel (default "
+        "CAM_FRONT).",
+    ),
+]
+
+SequenceName = Annotated[
+    str | None,
+    typer.Option(
+        "--sequence", help="Sequence (KITTI odometry), drive (KITTI raw) or scene (nuScenes: name or token)."
     ),
 ]
 
@@ -35,6 +43,16 @@ Rig = Annotated[
         help="Another camera of --data's rig (a dataset of one camera and the same scans, paired by "
         "position; repeat for each): the cameras together, their extrinsics taken as right relative "
         "to each other; the extrinsic is --data's camera's (README: Several cameras: a rig).",
+    ),
+]
+
+
+RigCameraOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--rig-camera",
+        help="Another camera of --data's own dataset in its rig (as --camera names it, e.g. a "
+        "nuScenes channel; repeat for each): calibrated or checked together as --rig's.",
     ),
 ]
 

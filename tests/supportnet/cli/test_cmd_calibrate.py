@@ -255,3 +255,10 @@ def test_a_rig_uses_every_cameras_frame_of_enough_scans(still_vineyard, tmp_path
         "overlay_uniform.png",
         "overlay_uniform_1_00.png",
     }
+    # --rig-camera: the same camera named again in --data's own dataset, the same answer
+    named = run_calibrate(
+        sequence, None, "uniform", "perturb:10,2", tmp_path / "named", FAST, rig_camera=["2"]
+    )
+    np.testing.assert_allclose(named["T_cam_lidar"], out["T_cam_lidar"], atol=1e-12)
+    assert [entry["camera"] for entry in named["rig"]] == [None, "2"]
+    assert (tmp_path / "named" / "overlay_uniform_1_2.png").is_file()

@@ -145,13 +145,29 @@ def test_a_result_calibrated_on_other_data_is_noted(world, tmp_path):
 @pytest.mark.realdata
 def test_check_a_rig_of_the_six_nuscenes_cameras(realdata, tmp_path):
     """``--rig``: CAM_FRONT's reference checked with the five other cameras of the sweep is good
-    (alone, the front camera's is not: README), and check.json names the rig's datasets."""
-    from calib.data.real_fixtures import NUSCENES_CAMERAS, custom_from_nuscenes
+    (alone, the front camera's is not: README), and check.json names the rig's datasets; the same
+    with the sweep read through the nuScenes reader and ``--rig-camera`` naming its channels."""
+    from calib.data.real_fixtures import NUSCENES_CAMERAS, custom_from_nuscenes, nuscenes_from_mmdet
     from supportnet.cli.cmd_check import run_check
 
     folders = [custom_from_nuscenes(realdata, c, tmp_path / c) for c in NUSCENES_CAMERAS]
     np.savetxt(tmp_path / "front.txt", open_dataset(folders[0]).calibration.T_cam_lidar)
     out = run_check(folders[0], None, tmp_path / "front.txt", tmp_path / "chk", rig=folders[1:])
     assert out["verdict"] == "good" and out["exit_code"] == 0
-    assert out["rig"] == [str(f) for f in folders[1:]] and len(out["frames"]) == 6
+    assert [entry["data"] for entry in out["rig"]] == [str(f) for f in folders[1:]] and len(
+        out["frames"]
+    ) == 6
     assert "its rig's 5 other camera(s)" in (tmp_path / "chk" / "check.md").read_text()
+
+    devkit = nuscenes_from_mmdet(realdata, tmp_path / "nuscenes")
+    np.savetxt(tmp_path / "static.txt", open_dataset(devkit, camera="CAM_FRONT").calibration.T_cam_lidar)
+    out = run_check(
+        devkit,
+        None,
+        tmp_path / "static.txt",
+        tmp_path / "dev",
+        camera="CAM_FRONT",
+        rig_camera=NUSCENES_CAMERAS[1:],
+    )
+    assert out["verdict"] == "good" and len(out["frames"]) == 6
+    assert out["rig"] == [{"data": str(devkit), "camera": c} for c in NUSCENES_CAMERAS[1:]]
