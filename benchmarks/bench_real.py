@@ -59,7 +59,7 @@ from results_io import cpu_description, package_versions, save_results
 from rich.console import Console
 
 from calib.data import Frame, open_dataset
-from calib.data.real_fixtures import NUSCENES_CAMERAS, check_fixtures, nuscenes_from_mmdet, realdata_root
+from calib.data.real_fixtures import check_fixtures, realdata_root
 from calib.data.rig import as_rig, unknown_reference
 from calib.geometry import calibration_error, perturb
 from calib.refine.passes import CalibrateConfig, load_calibrate_config
@@ -270,7 +270,6 @@ grid and averaged, and kept while the view turns less than 4 px (``edge.supersam
 ALL6 = "kitti-raw-0928-all6"
 PJLAB12 = "pjlab-12"
 NUSCENES_RIG = "nuscenes-rig"
-NUSCENES_DEVKIT_RIG = "nuscenes-devkit-rig"
 KITTI_RES = {"width": 1242, "height": 375, "fx": 721.5, "fy": 721.5, "cx": 609.6, "cy": 172.9}
 ZED_HALF = {"width": 960, "height": 540, "fx": 527.0, "fy": 527.0, "cx": 479.5, "cy": 269.5}
 SYNTH_CAMERAS = {"urban": KITTI_RES, "vineyard": ZED_HALF}
@@ -534,19 +533,12 @@ def real_datasets(work: Path, notes: dict) -> Iterator[Dataset]:
     cameras = [loaded[name][0][0] for name in loaded if name.startswith("nuscenes-cam")]
     rig = as_rig(cameras)
     notes[NUSCENES_RIG] = (
-        f"the one nuScenes sweep seen by its {len(rig)} cameras as one rig: each camera's T_cam_rig "
-        "from the references' relative poses, the rig's frame CAM_FRONT's, so a run's error is each "
-        "camera's; single-frame success (one sweep)"
+        f"the one nuScenes sweep seen by its {len(rig)} cameras as one rig (the nuScenes reader: each "
+        "camera's points at its exposure): each camera's T_cam_rig from the static extrinsics' relative "
+        "poses, the rig's frame CAM_FRONT's, so a run's error is each camera's; single-frame success "
+        "(one sweep)"
     )
     yield Dataset(NUSCENES_RIG, lambda _run, r=rig: (r, unknown_reference(r[0].calibration), {}), 1)
-    devkit = nuscenes_from_mmdet(root, work / "nuscenes_devkit")
-    rig = as_rig([_loaded(devkit, camera)[0][0] for camera in NUSCENES_CAMERAS])
-    notes[NUSCENES_DEVKIT_RIG] = (
-        f"the same sweep through the nuScenes reader (devkit layout): each camera's points moved to "
-        f"its exposure with the car's poses, the static extrinsics (cam2ego⁻¹ · lidar2ego) placing "
-        f"the {len(rig)} cameras, the reference CAM_FRONT's static extrinsic"
-    )
-    yield Dataset(NUSCENES_DEVKIT_RIG, lambda _run, r=rig: (r, unknown_reference(r[0].calibration), {}), 1)
 
 
 def synthetic_datasets(seeds: tuple[int, ...] = SYNTH_SEEDS) -> Iterator[Dataset]:

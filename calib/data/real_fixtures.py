@@ -294,8 +294,9 @@ class CheckFixture:
 def check_fixtures(realdata: Path, workdir: Path) -> list[CheckFixture]:
     """Every real fixture with a reference extrinsic, one dataset each, converted where needed
     into ``workdir``: the two KITTI raw 2011_09_28 folders (grey camera 0), KITTI object 000008
-    (cropped scan) and 000114 (full scan), the six nuScenes cameras and the three PJLab scenes
-    (scans in scan-line order)."""
+    (cropped scan) and 000114 (full scan), the six nuScenes cameras (through the nuScenes reader:
+    each camera's points at its exposure, the static extrinsic) and the three PJLab scenes (scans
+    in scan-line order)."""
     realdata, workdir = Path(realdata), Path(workdir)
     fixtures = [
         CheckFixture("kitti-raw-0928", realdata / AMZ_DRIVE, "0"),
@@ -303,9 +304,9 @@ def check_fixtures(realdata: Path, workdir: Path) -> list[CheckFixture]:
         CheckFixture("kitti-object-000008", kitti_object_from_mmdet(realdata, workdir / "kitti_000008")),
         CheckFixture("kitti-object-000114", kitti_object_from_cvml(realdata, workdir / "kitti_000114")),
     ]
+    nuscenes = nuscenes_from_mmdet(realdata, workdir / "nuscenes")
     for camera in NUSCENES_CAMERAS:
-        folder = custom_from_nuscenes(realdata, camera, workdir / f"nuscenes_{camera.lower()}")
-        fixtures.append(CheckFixture(f"nuscenes-{camera.lower().replace('_', '-')}", folder))
+        fixtures.append(CheckFixture(f"nuscenes-{camera.lower().replace('_', '-')}", nuscenes, camera))
     for scene in PJLAB_SCENES:
         folder = custom_from_pjlab_scanlines(realdata, scene, workdir / f"pjlab_{scene}")
         fixtures.append(CheckFixture(f"pjlab-{scene}", folder))
