@@ -142,13 +142,14 @@ class NuScenesSequence(FileSequence):
         points, ring = read_nuscenes_bin(self.scan_paths[i])
         near = np.linalg.norm(points[:, :3], axis=1) < MIN_RANGE_M
         points, ring = points[~near], ring[~near]
-        points = points[scanline_order(points[:, :3], ring)]
-        # the LiDAR's motion from the sweep's stamp to the camera's exposure (the devkit's chain)
+        # the LiDAR's motion from the sweep's stamp to the camera's exposure (the devkit's chain);
+        # then scan-line order by the ring and the azimuth about the centre the points now have
         T_then_now = np.linalg.inv(self.camera_poses[i]) @ self.lidar_poses[i]
         moved = points.copy()
         moved[:, :3] = (points[:, :3].astype(np.float64) @ T_then_now[:3, :3].T + T_then_now[:3, 3]).astype(
             np.float32
         )
+        moved = moved[scanline_order(moved[:, :3], ring)]
         return Frame(
             image=image,
             points=moved,
