@@ -198,31 +198,43 @@ def test_a_good_check_on_frames_that_show_only_large_errors_says_it_cannot_confi
 
 
 def test_a_rig_of_the_six_nuscenes_cameras_is_calibrated_together(realdata, tmp_path):
-    """``--rig``: the one nuScenes sweep seen by its six cameras, from 25 cm / 5° off CAM_FRONT's
-    reference (each camera as far off: the rig moves them together), ends within 10 cm / 0.6° of
-    it (4.5 cm / 0.30° when measured; one camera alone ends 23-39 cm off, README), and
+    """``--rig-camera``: the one nuScenes sweep (through the nuScenes reader) seen by its six
+    cameras, from 25 cm / 5° off CAM_FRONT's reference (each camera as far off: the rig moves them
+    together), ends within 10 cm / 0.6° of it (one camera alone ends 17-52 cm off, README), and
     result.json's rig gives every camera its own extrinsic, as near its own reference."""
-    from calib.data.real_fixtures import NUSCENES_CAMERAS, custom_from_nuscenes
+    from calib.data.real_fixtures import NUSCENES_CAMERAS, nuscenes_from_mmdet
     from calib.geometry import calibration_error
 
-    folders = [custom_from_nuscenes(realdata, c, tmp_path / c) for c in NUSCENES_CAMERAS]
+    root = nuscenes_from_mmdet(realdata, tmp_path / "nuscenes")
     config = load_calibrate_config()
     out = run_calibrate(
-        folders[0], None, "uniform", "perturb:25,5", tmp_path / "cal", config, rig=folders[1:]
-    )
+        root, None, "uniform", "perturb:25,5", tmp_path / "cal", config, camera="CAM_FRONT",
+        rig_camera=NUSCENES_CAMERAS[1:],
+    )  # fmt: skip
     assert out["initial_error"]["translation_cm"] == pytest.approx(25.0)
     assert out["error"]["translation_cm"] < 10.0 and out["error"]["rotation_deg"] < 0.6
-    assert [entry["data"] for entry in out["rig"]] == [str(f) for f in folders]
-    for folder, entry in zip(folders, out["rig"], strict=True):
-        reference = open_dataset(folder).calibration.T_cam_lidar
+    assert [entry["camera"] for entry in out["rig"]] == list(NUSCENES_CAMERAS)
+    for entry in out["rig"]:
+        reference = open_dataset(root, camera=entry["camera"]).calibration.T_cam_lidar
         error = calibration_error(np.array(entry["T_cam_lidar"]), reference)
         assert error.translation_cm == pytest.approx(out["error"]["translation_cm"], abs=1e-6)
     summary = (tmp_path / "cal" / "summary.md").read_text()
-    assert "A rig of 6 cameras" in summary and "Check of the answer on the rig's 6 cameras" in summary
+    assert "A rig of 6 cameras" in summary and "the answer is CAM_FRONT's extrinsic" in summary
+    assert "Check of the answer on the rig's 6 cameras" in summary
     assert "a rig's cameras" in out["time_offset_note"]
     assert len(list((tmp_path / "cal").glob("overlay_uniform*.png"))) == 6  # one per camera
+    assert (tmp_path / "cal" / "overlay_uniform_5_CAM_FRONT_LEFT.png").is_file()
     with pytest.raises(ConfigError, match="--rig.*stage1 takes one camera"):
-        run_calibrate(folders[0], None, "uniform", "stage1", tmp_path / "s1", config, rig=folders[1:2])
+        run_calibrate(
+            root,
+            None,
+            "uniform",
+            "stage1",
+            tmp_path / "s1",
+            config,
+            camera="CAM_FRONT",
+            rig_camera=["CAM_BACK"],
+        )
 
 
 def test_a_rigs_cameras_need_as_many_frames(still_vineyard, realdata, tmp_path):
