@@ -213,6 +213,10 @@ VARIANTS = {
     "global-pyramid-fullres-iwfine360-ss4": (
         "global+pyramid+dense at full resolution, 360 px on: intensity 0.25, edges drawn at 4 phases"
     ),
+    "global-flowcoarse3-probe4-pyramid-fullres-iwfine360-ss4": (
+        "global+flow coarse on 3 frames+probe on 4+pyramid+dense at full resolution, 360 px on: "
+        "intensity 0.25, edges drawn at 4 phases"
+    ),  # the packaged config with each scan's edges drawn at four sub-pixel phases (edge.supersample)
 }
 PACKAGED = "global-flowcoarse3-probe4-pyramid-fullres-iwfine360"
 """The variant that is the packaged ``calibrate.yaml`` (the default of ``--variants``)."""
