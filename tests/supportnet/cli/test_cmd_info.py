@@ -116,3 +116,19 @@ def test_camera_and_sequence_on_a_bag(tmp_path):
         run_cli("info", bag, "--camera", "/right/image", "--sequence", "00"),
         "a ROS bag holds one sequence; leave out --sequence",
     )
+
+
+def test_scene_and_camera_on_nuscenes(tmp_path):
+    """A nuScenes root: ``--sequence`` picks a scene, ``--camera`` a channel; the camera's lead
+    over the sweep is said; a missing scene or camera is one line."""
+    from tests.calib.data.test_nuscenes import write_devkit
+
+    root = write_devkit(tmp_path / "nus", scenes=("scene-0001", "scene-0002"))
+    assert_one_line_error(run_cli("info", root), "holds 2 scenes", "pick one with --sequence")
+    result = run_cli("info", root, "--sequence", "scene-0002", "--check-all")
+    assert result.returncode == 0, result.stderr
+    assert "layout: nuscenes" in result.stdout and re.search(r"camera\s+CAM_FRONT\s*\n", result.stdout)
+    assert "CAM_FRONT exposes -30.0 ms from the sweep's stamp" in result.stdout
+    assert_one_line_error(
+        run_cli("info", root, "--sequence", "scene-0002", "--camera", "2"), "no camera '2'", "CAM_FRONT"
+    )
