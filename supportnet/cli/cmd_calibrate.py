@@ -230,13 +230,13 @@ def run_calibrate(
     if init_text.startswith("file:"):
         inputs.append(Path(init_text[len("file:") :]))
     claim_output(out, overwrite, inputs)
-    rig = rig_cameras(data, sequence, rig, rig_camera)
+    members = rig_cameras(data, sequence, rig, rig_camera)
     if runs < 1:
         raise ConfigError("--runs", f"must be at least 1, got {runs}")
     init_kind, init_arg = parse_init(init_text)
     matcher = build_matcher(config.matcher, config.edge, config.flow_model)
     supports = parse_supports(supports_text, config.support_map)
-    if rig and (init_kind == "stage1" or offline_maps_folders(supports)):
+    if members and (init_kind == "stage1" or offline_maps_folders(supports)):
         what = "--init stage1" if init_kind == "stage1" else "an offline:MAPS support"
         raise ConfigError("--rig", f"{what} takes one camera; give --init perturb:/file: and uniform or onnx")
     start = time.perf_counter()
@@ -245,8 +245,8 @@ def run_calibrate(
         for maps in offline_maps_folders(supports):
             check_maps_fingerprint(maps, seq)
         calibrated = seq
-        if rig:
-            positions, calibrated = open_rig(stack, seq, data, rig, config.frames)
+        if members:
+            positions, calibrated = open_rig(stack, seq, data, members, config.frames)
             config = config.model_copy(update={"frames": len(calibrated)})  # all of them
         T_ref = seq.calibration.T_cam_lidar
         if init_kind == "perturb" and T_ref is None:
@@ -269,7 +269,7 @@ def run_calibrate(
         if init_kind == "file" and (hint := inverse_hint([seq[len(seq) // 2]], np.asarray(init_arg))):
             console.print(f"The initial extrinsic: {hint}", markup=False, highlight=False, soft_wrap=True)
         motions: SequenceMotions | str | None = "time_offset.mode: off"
-        if rig:  # the Calibrator says why a rig's points stay as measured
+        if members:  # the Calibrator says why a rig's points stay as measured
             motions = None
         elif config.time_offset.mode != "off":  # the LiDAR's motion around the used frames, once for all runs
             motions = SequenceMotions(seq, config.time_offset.neighbours, config.time_offset.deskew_rounds)
@@ -302,7 +302,7 @@ def run_calibrate(
         # the first answer's frames, for its check and overlay (of a rig every camera's, the first
         # --data's, whose extrinsic the answer is)
         frames = [calibrated[i] for i in first.frame_indices]
-        cameras = [calibrated[i].calibration.T_cam_rig for i in range(len(rig) + 1)] if rig else None
+        cameras = [calibrated[i].calibration.T_cam_rig for i in range(len(members) + 1)] if members else None
     checked = None
     if check:
         with console.status(f"Checking the answer on {len(frames)} frame(s) (no ground truth)"):
@@ -310,9 +310,9 @@ def run_calibrate(
     by_support = {}
     for name, done in results.items():
         run_dicts = [{"run": k, **r.to_dict()} for k, r in enumerate(done)]
-        for entry in run_dicts if rig else ():  # a rig's frames by their scans' positions in --data
+        for entry in run_dicts if members else ():  # a rig's frames by their scans' positions in --data
             entry["frame_indices"] = sorted(
-                {int(positions[i // (len(rig) + 1)]) for i in entry["frame_indices"]}
+                {int(positions[i // (len(members) + 1)]) for i in entry["frame_indices"]}
             )
         by_support[name] = {
             **run_dicts[0],
@@ -347,7 +347,7 @@ def run_calibrate(
         else [
             {**member.to_dict(), "T_cam_lidar": (T_cam_rig @ first.T_cam_lidar).tolist()}
             for member, T_cam_rig in zip(
-                [RigCamera(Path(data), camera, sequence), *rig], cameras, strict=True
+                [RigCamera(Path(data), camera, sequence), *members], cameras, strict=True
             )
         ],
         "config": config.model_dump(mode="json"),
@@ -364,7 +364,7 @@ def run_calibrate(
                 _overlay(frames[0], first.initial_T_cam_lidar, first.T_cam_lidar),
             )
             # the rig's other cameras, each under its number (folders may share a name) and name
-            for k, (member, frame) in enumerate(zip(rig, frames[1 : len(rig) + 1], strict=False), 1):
+            for k, (member, frame) in enumerate(zip(members, frames[1 : len(members) + 1], strict=False), 1):
                 write_image(
                     tmp / f"overlay_{_slug(support.name)}_{k}_{_slug(member.name)}.png",
                     _overlay(frame, first.initial_T_cam_lidar, first.T_cam_lidar),

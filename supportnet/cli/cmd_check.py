@@ -93,7 +93,7 @@ def open_rig(
     ``seq``, as make at least ``count`` frames (:func:`calib.data.rig.rig_frames`)."""
     others = [stack.enter_context(open_dataset(c.path, sequence=c.sequence, camera=c.camera)) for c in rig]
     positions = [int(i) for i in select_frames(len(seq), -(-count // (len(rig) + 1)))]
-    names = [f"{data} ({seq.camera})" if seq.camera else str(data), *(c.label for c in rig)]
+    names = [RigCamera(Path(data), seq.camera or None).label, *(c.label for c in rig)]
     return positions, rig_frames([seq, *others], names, positions)
 
 
