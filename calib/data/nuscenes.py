@@ -22,11 +22,14 @@ in a second; the full ``v1.0-trainval`` takes minutes and several GB).
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from calib.data.io import read_image, require_file, scanline_order, validate_points
 from calib.data.types import Calibration, FileSequence, Frame, time_problems
@@ -73,13 +76,8 @@ def pose_matrix(record: dict, where: str | Path) -> np.ndarray:
             f"record {record.get('token', '?')!r}: rotation is not a unit quaternion "
             f"or translation not finite ({[w, x, y, z]}, {t.tolist()})",
         )
-    w, x, y, z = w / norm, x / norm, y / norm, z / norm
     T = np.eye(4)
-    T[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
+    T[:3, :3] = Rotation.from_quat([x, y, z, w]).as_matrix()  # scipy's order: scalar last
     T[:3, 3] = t
     return T
 
@@ -160,18 +158,65 @@ class NuScenesSequence(FileSequence):
         )
 
 
+@dataclass(frozen=True)
+class _Index:
+    """A table folder's records: scenes in order, the others by token, and every key frame's
+    ``sample_data`` by its sample and channel."""
+
+    scenes: list[dict]
+    sensors: dict[str, dict]
+    calibrated: dict[str, dict]
+    ego: dict[str, dict]
+    samples: dict[str, dict]
+    key_frames: dict[tuple[str, str], dict]
+
+
+def _index(tables: Path) -> _Index:
+    """The folder's :class:`_Index`, parsed once while its files stay as they are (a rig's
+    cameras open one dataset once each: v1.0-trainval's tables take minutes to parse)."""
+    stamps = []
+    for name in TABLES:
+        path = tables / f"{name}.json"
+        stamps.append((path.stat().st_mtime_ns, path.stat().st_size) if path.is_file() else None)
+    return _parsed_index(tables, tuple(stamps))
+
+
+@functools.lru_cache(maxsize=1)
+def _parsed_index(tables: Path, _stamps: tuple) -> _Index:
+    sensors = {r["token"]: r for r in _table(tables, "sensor")}
+    calibrated = {r["token"]: r for r in _table(tables, "calibrated_sensor")}
+
+    def channel(record: dict) -> str:
+        return sensors.get(
+            calibrated.get(record.get("calibrated_sensor_token"), {}).get("sensor_token"), {}
+        ).get("channel", "")
+
+    key_frames = {
+        (record.get("sample_token"), channel(record)): record
+        for record in _table(tables, "sample_data")
+        if record.get("is_key_frame")
+    }
+    return _Index(
+        scenes=_table(tables, "scene"),
+        sensors=sensors,
+        calibrated=calibrated,
+        ego={r["token"]: r for r in _table(tables, "ego_pose")},
+        samples={r["token"]: r for r in _table(tables, "sample")},
+        key_frames=key_frames,
+    )
+
+
 def _scene(scenes: list[dict], sequence: str | None, where: Path) -> dict:
+    if sequence is None and len(scenes) == 1:
+        return scenes[0]
+    chosen = [s for s in scenes if sequence is not None and sequence in (s.get("name"), s["token"])]
+    if chosen:
+        return chosen[0]
+    listed = ", ".join(s.get("name", s["token"]) for s in scenes[:12])
+    listed += f" and {len(scenes) - 12} more" if len(scenes) > 12 else ""
     if sequence is None:
-        if len(scenes) == 1:
-            return scenes[0]
-        names = ", ".join(s.get("name", s["token"]) for s in scenes[:12])
-        more = f" and {len(scenes) - 12} more" if len(scenes) > 12 else ""
-        raise DataError(where, f"holds {len(scenes)} scenes ({names}{more}); pick one with --sequence")
-    chosen = [s for s in scenes if sequence in (s.get("name"), s["token"])]
-    if not chosen:
-        names = ", ".join(s.get("name", s["token"]) for s in scenes[:12])
-        raise DataError(where, f"no scene {sequence!r} (have: {names}{' ...' if len(scenes) > 12 else ''})")
-    return chosen[0]
+        raise DataError(where, f"holds {len(scenes)} scenes ({listed}); pick one with --sequence")
+    raise DataError(where, f"no scene {sequence!r} (have: {listed})")
 
 
 def read_nuscenes(
@@ -194,21 +239,9 @@ def read_nuscenes(
         )
     tables = versions[0]
     root = tables if (tables / "samples").is_dir() else tables.parent
-    scene = _scene(_table(tables, "scene"), sequence, tables / "scene.json")
-    sensors = {r["token"]: r for r in _table(tables, "sensor")}
-    calibrated = {r["token"]: r for r in _table(tables, "calibrated_sensor")}
-    ego = {r["token"]: r for r in _table(tables, "ego_pose")}
-    samples = {r["token"]: r for r in _table(tables, "sample")}
-
-    def channel(record: dict) -> str:
-        return sensors.get(
-            calibrated.get(record.get("calibrated_sensor_token"), {}).get("sensor_token"), {}
-        ).get("channel", "")
-
-    key_frames: dict[tuple[str, str], dict] = {}
-    for record in _table(tables, "sample_data"):
-        if record.get("is_key_frame"):
-            key_frames[(record.get("sample_token"), channel(record))] = record
+    index = _index(tables)
+    sensors, calibrated, ego, samples = index.sensors, index.calibrated, index.ego, index.samples
+    scene = _scene(index.scenes, sequence, tables / "scene.json")
     cameras = sorted({s["channel"] for s in sensors.values() if s.get("modality") == "camera"})
     name = str(camera) if camera is not None else DEFAULT_NUSCENES_CAMERA
     if name not in cameras:
@@ -221,7 +254,7 @@ def read_nuscenes(
     problems: list[str] = []
     pairs = []
     for sample in order:
-        image, sweep = key_frames.get((sample, name)), key_frames.get((sample, LIDAR_CHANNEL))
+        image, sweep = index.key_frames.get((sample, name)), index.key_frames.get((sample, LIDAR_CHANNEL))
         if image is None or sweep is None:
             problems.append(
                 f"{tables / 'sample_data.json'}: sample {sample} of {scene.get('name')} "

@@ -18,6 +18,7 @@ import yaml
 
 from calib.data import Frame, open_dataset
 from calib.data.io import format_kv_line, read_kv_file, read_pcd_fields, scanline_order, write_bin
+from calib.data.nuscenes import TABLES
 
 __all__ = [
     "AMZ_DRIVE",
@@ -182,9 +183,7 @@ def nuscenes_from_mmdet(realdata: Path, out: Path) -> Path:
     with open(next(src.glob("*.pkl")), "rb") as handle:
         info = pickle.load(handle)["data_list"][0]
     out = Path(out)
-    tables = {
-        name: [] for name in ("scene", "sample", "sample_data", "calibrated_sensor", "sensor", "ego_pose")
-    }
+    tables: dict[str, list[dict]] = {name: [] for name in TABLES}
 
     def record(T: np.ndarray, **fields: object) -> dict:
         x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from calib.data import detect_layout, open_dataset
-from calib.data.nuscenes import pose_matrix
+from calib.data.nuscenes import _parsed_index, pose_matrix
 from calib.data.real_fixtures import NUSCENES, NUSCENES_CAMERAS, custom_from_nuscenes, nuscenes_from_mmdet
 from calib.errors import DataError
 
@@ -150,6 +150,9 @@ def test_scenes_cameras_and_broken_data_are_named(tmp_path):
     ):
         open_dataset(root)
     assert len(open_dataset(root, sequence="scene-0002")) == 3
+    parsed = _parsed_index.cache_info().misses
+    assert len(open_dataset(root, sequence="scene-0001")) == 3  # the tables parsed once for both
+    assert _parsed_index.cache_info().misses == parsed
     assert len(open_dataset(root, sequence="tok_scene-0002")) == 3
     with pytest.raises(DataError, match="no scene 'scene-9'"):
         open_dataset(root, sequence="scene-9")
