@@ -10,7 +10,7 @@ import torch
 
 from calib.data.types import Frame
 from calib.geometry import perturb
-from calib.projection import Visibility, project_scan
+from calib.projection import Visibility, measured, project_scan
 
 __all__ = [
     "contour_alignment",
@@ -46,6 +46,9 @@ def depth_discontinuities(
     within ``surface_tol``): isolated returns and foliage, which jump all the time, carry no
     clean image edge.
 
+    Missing returns (:data:`~calib.projection.MISSING_RETURN_M`) are no surface: the returns on
+    either side of one are neighbours.
+
     Args:
         points_lidar: ``(N, 3)`` or ``(N, 4)`` points.
         ring: ``(N,)`` laser index per point, optional.
@@ -54,6 +57,19 @@ def depth_discontinuities(
         ``nearer (M,)`` and ``farther (M,)`` point indices of each discontinuity: the occluding
         contour seen by the camera lies between the two returns.
     """
+    points_lidar = np.asarray(points_lidar)
+    kept = np.flatnonzero(measured(points_lidar))
+    if len(kept) < len(points_lidar):
+        nearer, farther = depth_discontinuities(
+            points_lidar[kept],
+            None if ring is None else ring[kept],
+            min_jump_m,
+            rel_jump,
+            max_azimuth_gap_deg,
+            max_elevation_gap_deg,
+            surface_tol,
+        )
+        return kept[nearer], kept[farther]
     xyz = np.asarray(points_lidar, dtype=np.float64)[:, :3]
     azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
     horizontal = np.hypot(xyz[:, 0], xyz[:, 1])
@@ -85,8 +101,10 @@ def _ring_gaps(
     points_lidar: np.ndarray, column_deg: float, same_ring_deg: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Elevation gaps (°) between vertically neighbouring returns of each azimuth column
-    ``column_deg`` wide (closer than ``same_ring_deg``: one ring), and each gap's lower end (°)."""
+    ``column_deg`` wide (closer than ``same_ring_deg``: one ring), and each gap's lower end (°);
+    missing returns (:data:`~calib.projection.MISSING_RETURN_M`) left out."""
     xyz = np.asarray(points_lidar, np.float64)[:, :3]
+    xyz = xyz[measured(xyz)]
     horizontal = np.hypot(xyz[:, 0], xyz[:, 1])
     column = np.floor(np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])) / column_deg).astype(np.int64)
     elevation = np.degrees(np.arctan2(xyz[:, 2], horizontal))
@@ -183,6 +201,9 @@ def scan_lines(points_lidar: np.ndarray, min_lines: int = 8, backward_deg: float
     nine steps of ten) by about the spacing between rings (half to twice it). A line's own
     elevations spread wider than that on real scanners (KITTI: 1° interquartile; the lasers sit
     off the scanner's centre, so near returns read high), so they cannot tell lines apart.
+    Missing returns stored in place (:data:`~calib.projection.MISSING_RETURN_M`), whose azimuth
+    about the centre is noise, neither start a line nor count in its elevation; each joins the
+    line of the return stored before it.
 
     Args:
         points_lidar: ``(N, 3+)`` points in stored order.
@@ -191,16 +212,19 @@ def scan_lines(points_lidar: np.ndarray, min_lines: int = 8, backward_deg: float
         ``(N,)`` int64 line index in stored order, or ``None``.
     """
     xyz = np.asarray(points_lidar, np.float64)[:, :3]
-    if len(xyz) < 2:
+    far = np.flatnonzero(measured(xyz))
+    if len(far) < 2:
         return None
-    azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
+    azimuth = np.degrees(np.arctan2(xyz[far, 1], xyz[far, 0]))
     step = np.diff(azimuth)
     sweep = np.sign(np.median(step))
-    line = np.concatenate([[0], np.cumsum(sweep * step < -backward_deg)])
+    starts = np.zeros(len(xyz), np.int64)
+    starts[far[1:][sweep * step < -backward_deg]] = 1
+    line = np.cumsum(starts)  # a near return joins the line of the return stored before it
     if line[-1] + 1 < min_lines:
         return None
-    elevation = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
-    bounds = np.concatenate([[0], np.cumsum(np.bincount(line))])  # lines are contiguous runs
+    elevation = np.degrees(np.arctan2(xyz[far, 2], np.hypot(xyz[far, 0], xyz[far, 1])))
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(line[far]))])  # lines are contiguous runs
     medians = np.array([np.median(elevation[a:b]) for a, b in zip(bounds[:-1], bounds[1:], strict=True)])
     steps = np.diff(medians)
     same_way = max(np.mean(steps > 0), np.mean(steps < 0))
@@ -219,7 +243,7 @@ def _lines_of(
         return None
     xyz = points[:, :3].astype(np.float64)
     azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
-    bright = points[:, 3] > 0
+    bright = (points[:, 3] > 0) & measured(points)
     bounds = np.concatenate([[0], np.cumsum(np.bincount(line))])  # lines are contiguous runs
     lines = []
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):

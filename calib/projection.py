@@ -14,7 +14,9 @@ import torch
 import torch.nn.functional as F
 
 __all__ = [
+    "MISSING_RETURN_M",
     "ProjectedScan",
+    "measured",
     "Visibility",
     "project_points",
     "project_scan",
@@ -215,6 +217,20 @@ class ProjectedScan:
         return img.numpy().astype(np.float32)
 
 
+MISSING_RETURN_M = 0.1
+"""A return nearer the LiDAR's centre than this is a missing one: organised clouds (Ouster's
+drivers, many converters) keep a missing return in its place as (0, 0, 0) or at its beam's origin
+a few centimetres off the centre. No LiDAR measures this near (minimum ranges: 0.1 m for a Livox
+Mid-360, 0.25–1 m for spinning ones)."""
+
+
+def measured(points_lidar: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: the returns of ``points_lidar (N, 3+)`` that are not missing ones
+    (:data:`MISSING_RETURN_M`)."""
+    xyz = np.asarray(points_lidar, np.float64)[:, :3]
+    return np.einsum("ij,ij->i", xyz, xyz) >= MISSING_RETURN_M**2
+
+
 def project_scan(
     points_lidar: np.ndarray,
     T_cam_lidar: np.ndarray,
@@ -231,6 +247,9 @@ def project_scan(
         image_size: ``(H, W)``.
         visibility: occlusion test; ``None`` keeps every point in front of the camera and inside
             the image (no occlusion handling).
+
+    Missing returns (within :data:`MISSING_RETURN_M` of the LiDAR's centre) are never kept: where
+    the LiDAR's centre lies in view, thousands of them would fall on one pixel.
     """
     points = np.asarray(points_lidar, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] < 3:
@@ -240,6 +259,7 @@ def project_scan(
     # only points ahead of the camera can be seen (half of a 360° scan): their depth alone
     # first, with a margin for its rounding, and the projection of those; the exact test decides
     ahead = np.flatnonzero(points[:, :3] @ T_cam_lidar[2, :3] + T_cam_lidar[2, 3] > min_depth - 1e-6)
+    ahead = ahead[measured(points[ahead])]
     pts = torch.as_tensor(points[ahead])
     points_cam = transform_points(torch.as_tensor(T_cam_lidar), pts[:, :3])
     uv, depth = project_points(points_cam, torch.as_tensor(np.asarray(K, np.float64)))

@@ -31,7 +31,7 @@ from calib.data.types import Frame
 from calib.features import RingProfile, level_laser_gains, ring_spacing_profile
 from calib.geometry import kabsch
 from calib.match.correspondences import Correspondences, WorkingView, working_view
-from calib.projection import ProjectedScan, Visibility, project_scan
+from calib.projection import ProjectedScan, Visibility, measured, project_scan
 
 Value = TypeVar("Value")
 
@@ -228,7 +228,7 @@ def _lidar_sees(
     """``(H, W)`` bool: pixels whose ray (``ray_elevation (H, W)``, °) lies within the scan's
     elevation range, less the fill radius there (:func:`lidar_edges`), where a missing return
     means open sky rather than a pixel outside the LiDAR's view."""
-    xyz = points_lidar[::7, :3].astype(np.float64)  # a subsample bounds the elevation range
+    xyz = points_lidar[measured(points_lidar)][::7, :3].astype(np.float64)  # a subsample bounds the range
     elevation = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
     top, bottom = np.percentile(elevation, [99.9, 0.1]) if len(xyz) else (0.0, 0.0)
     top_margin, bottom_margin = _fill_radius_deg(rings, np.array([top, bottom]), config)

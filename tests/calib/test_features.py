@@ -43,6 +43,24 @@ def test_pole_in_front_of_wall_known_answer():
     assert leaf not in nearer, "an isolated return has no surface beside it"
 
 
+def test_missing_returns_between_neighbours_hide_no_contour():
+    """Missing returns stored in place, as (0, 0, 0) or at a beam's origin 3 cm off the centre,
+    beside the pole and within the wall: the same contours, at the returns' own indices (before,
+    a zero beside the pole broke the pole's edge from its wall, and a zero is no contour)."""
+    points, pole, leaf = _pole_scene()
+    zeros = np.array(
+        [40, pole[0] - 1, pole[-1] + 1]
+    )  # mid-wall, before the pole's first return, after its last
+    stored = np.insert(points, zeros, 0.0, axis=0)
+    stored[zeros[2] + 2, :3] = [0.03, 0.0, 0.01]  # each insertion moves the later ones by one
+    kept = np.flatnonzero(np.linalg.norm(stored[:, :3], axis=1) > 0.05)
+    nearer, farther = depth_discontinuities(stored)
+    expected_nearer, expected_farther = depth_discontinuities(points)
+    assert sorted(nearer.tolist()) == sorted(kept[expected_nearer].tolist())
+    assert sorted(farther.tolist()) == sorted(kept[expected_farther].tolist())
+    assert len(nearer) == 2
+
+
 def test_ring_sorting_recovers_an_unordered_scan():
     lower, pole_lo, _ = _pole_scene(-2.0)
     upper, pole_up, _ = _pole_scene(0.0)
@@ -131,6 +149,29 @@ def test_scan_lines_known_answer():
     # a gap of missing returns (open sky) jumps forward and does not start a line
     gap = (np.degrees(np.arctan2(points[:, 1], points[:, 0])) % 60) > 20
     np.testing.assert_array_equal(scan_lines(points[gap]), expected[gap])
+
+
+def test_missing_returns_stored_as_zeros_change_no_line_and_no_ring():
+    """Organised clouds (Ouster's drivers, many converters) keep a missing return in its place as
+    (0, 0, 0), or at its beam's origin a few centimetres off the centre. A fifth of the returns so
+    stored, and the scan moved by 5 mm (a deskew, or the points moved to the camera's time): the
+    same 32 lines and ring spacing as the scan without them, each zero in the line of the return
+    stored before it (before, every zero's azimuth about the moved centre started a line, and the
+    split was refused)."""
+    points, _ = _striped_scan(np.ones(32))
+    expected = np.repeat(np.arange(32), len(points) // 32)
+    missing = np.random.default_rng(2).random(len(points)) < 0.2
+    missing[0] = False
+    stored = points.copy()
+    stored[missing, :3] = 0.0
+    stored[missing & (np.arange(len(points)) % 2 == 0), :3] = [0.03, 0.0, 0.01]  # beam origins
+    stored[:, :3] += [0.004, -0.003, 0.002]
+    measured = np.flatnonzero(~missing)
+    before = measured[np.searchsorted(measured, np.arange(len(points)), side="right") - 1]
+    np.testing.assert_array_equal(scan_lines(stored), expected[before])
+    assert (expected[before] != expected).sum() < 32  # only zeros that open a line move
+    assert ring_spacing_deg(stored) == pytest.approx(0.4, abs=0.01)
+    assert ring_spacing_profile(stored).at(0.0) == pytest.approx(0.4, abs=0.01)
 
 
 def test_scan_lines_refuses_other_orders():

@@ -4,6 +4,7 @@ import torch
 
 from calib.projection import (
     Visibility,
+    measured,
     project_points,
     project_scan,
     render_image,
@@ -96,6 +97,19 @@ def test_points_behind_camera_and_outside_image_dropped():
     assert proj.intensity.tolist() == [0.3, 0.6]
     points_cam = mixed[[2, 4], :3] @ kitti_like_extrinsic()[:3, :3].T + kitti_like_extrinsic()[:3, 3]
     assert np.allclose(proj.depth, points_cam[:, 2])
+
+
+def test_missing_returns_are_never_projected():
+    """Organised clouds store a missing return as (0, 0, 0) or at its beam's origin, centimetres
+    from the centre. With the LiDAR's centre 1 m ahead of the camera, in view, none is kept (before,
+    every one fell on the centre's pixel); a return at 12 cm is kept."""
+    T = kitti_like_extrinsic()
+    T[2, 3] = 1.0
+    assert 0 < T[0, 3] / T[2, 3] * KITTI_K[0, 0] + KITTI_K[0, 2] < 624  # the centre's pixel lies in view
+    pts = np.array([[0.0, 0, 0, 0], [5.0, 0, 0, 0.5], [0.03, 0, 0.01, 0], [0.0, 0, 0, 0], [0.12, 0, 0, 0.2]])
+    for visibility in (None, Visibility()):
+        assert project_scan(pts, T, KITTI_K, (188, 624), visibility).index.tolist() == [1, 4]
+    assert measured(pts).tolist() == [False, True, False, False, True]
 
 
 def test_render_image_keeps_nearest_value_per_pixel():

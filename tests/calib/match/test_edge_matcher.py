@@ -291,8 +291,26 @@ def test_correspondences_shapes_and_an_empty_scan(still_vineyard):
     assert isinstance(corr, Correspondences) and len(corr) > 1000
     assert corr.uv.shape == corr.uv_matched.shape == (len(corr), 2) and corr.image_size == (188, 624)
     np.testing.assert_allclose(corr.points_lidar, frame.points[corr.index, :3])
-    frame.points = frame.points[:0]
-    assert len(EdgeMatcher().match(frame, frame.calibration.T_cam_lidar)) == 0
+    empty = replace(frame, points=frame.points[:0])  # the module's frames stay as rendered
+    assert len(EdgeMatcher().match(empty, frame.calibration.T_cam_lidar)) == 0
+
+
+def test_missing_returns_stored_in_place_change_no_match(still_vineyard):
+    """A fifth of the returns again as missing ones stored in place ((0, 0, 0) with no intensity),
+    the LiDAR's centre in view (a camera 1 m behind it): the same correspondences, bit for bit, at
+    the returns' own indices (before, each missing return was a match on the centre's pixel)."""
+    frame = still_vineyard[0]
+    T = frame.calibration.T_cam_lidar.copy()
+    T[2, 3] += 1.0
+    at = np.flatnonzero(np.random.default_rng(4).random(len(frame.points) + 1) < 0.2)
+    at = at[at <= len(frame.points)]
+    stored = np.insert(frame.points, at, 0.0, axis=0)
+    kept = np.flatnonzero(np.abs(stored[:, :3]).sum(1) > 0)
+    expected = EdgeMatcher().match(frame, T)
+    corr = EdgeMatcher().match(replace(frame, points=stored), T)
+    assert len(expected) > 100
+    np.testing.assert_array_equal(corr.index, kept[expected.index])
+    np.testing.assert_array_equal(corr.uv_matched, expected.uv_matched)
 
 
 def test_residuals_recover_a_known_perturbation_on_rigid_points(still_vineyard):
