@@ -3,7 +3,7 @@ PY      := .venv/bin/python
 STAMP   := .venv/.installed
 TORCH   := torch==2.13.0
 
-.PHONY: demo test test-all bench report lint clean model flow-model
+.PHONY: demo test test-all bench report lint clean model model-int8 flow-model
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -51,9 +51,14 @@ clean:
 	rm -rf .venv demo_out .pytest_cache
 
 # The shipped support predictor (supportnet/assets/support_unet.onnx and its model card), re-made
-# with fixed seeds: synthetic data and maps under build/model, then train, export and score.
+# with fixed seeds: synthetic data and maps under build/model, then train, export, quantise to 8
+# bits (support_unet_int8.onnx, what --support onnx runs) and score both.
 model: $(STAMP)
 	$(PY) -m train.recipe support
+
+# The 8-bit predictor alone, from the shipped float one (its data re-made under build/model).
+model-int8: $(STAMP)
+	$(PY) -m train.recipe support-int8
 
 # The shipped flow matcher (supportnet/assets/flow_matcher.onnx and its card), from the same data.
 flow-model: $(STAMP)

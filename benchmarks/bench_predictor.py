@@ -3,11 +3,11 @@ and at KITTI's full 1242x375, onnxruntime against torch eager, the same network 
 measured in one run; ``--compare OTHER.onnx`` times another exported predictor beside it (a
 ratio measured in the same run). The network is the shipped model's architecture (else the
 default SupportUNet) with random weights, exported as ``supportnet export`` does today (speed
-does not depend on the weights); the shipped file itself is timed beside it (exported by the
-code of its day: before stop 49 its output was upsampled inside the graph), and so is its call as
-Stage 4 makes it (``predict_frame``: the small frame at its 360.8 px, the full one at KITTI's 721.5
-px, resampled to the 360.8 px the model learned at and its map brought back). Prints a table and writes
-benchmarks/results/predictor.json.
+does not depend on the weights); the shipped files themselves are timed beside it, float and
+8-bit (exported by the code of their day: before stop 49 the output was upsampled inside the
+graph), and so is the 8-bit one's call as Stage 4 makes it (``predict_frame``: the small frame at
+its 360.8 px, the full one at KITTI's 721.5 px, resampled to the 360.8 px the model learned at and
+its map brought back). Prints a table and writes benchmarks/results/predictor.json.
 
     python benchmarks/bench_predictor.py [--compare OTHER.onnx]
 """
@@ -26,7 +26,7 @@ from results_io import save_results
 from calib.data.types import Calibration, Frame
 from export.onnx_export import export_network
 from supportnet.nets.support_unet import ModelConfig, SupportUNet
-from supportnet.runtime.support_predictor import SHIPPED_MODEL, SupportPredictor
+from supportnet.runtime.support_predictor import SHIPPED_FLOAT_MODEL, SHIPPED_MODEL, SupportPredictor
 from supportnet.runtime.support_sources import predict_frame
 
 SHAPES, REPEATS = ((188, 624), (375, 1242)), 50
@@ -87,9 +87,11 @@ def main() -> None:
             "onnxruntime": lambda: SupportPredictor(Path(tmp) / "model.onnx").predict,
             "torch eager": lambda: eager,
         }
+        if SHIPPED_FLOAT_MODEL.is_file():
+            makers["onnxruntime, shipped float file"] = lambda: SupportPredictor(SHIPPED_FLOAT_MODEL).predict
         if SHIPPED_MODEL.is_file():
-            makers["onnxruntime, shipped file"] = lambda: SupportPredictor(SHIPPED_MODEL).predict
-            makers["shipped file as Stage 4 calls it"] = lambda: stage4_call(SupportPredictor(SHIPPED_MODEL))
+            makers["onnxruntime, shipped 8-bit file"] = lambda: SupportPredictor(SHIPPED_MODEL).predict
+            makers["8-bit file as Stage 4 calls it"] = lambda: stage4_call(SupportPredictor(SHIPPED_MODEL))
         if args.compare is not None:
             makers[f"onnxruntime, {args.compare.name}"] = lambda: SupportPredictor(args.compare).predict
         rows = {}
@@ -115,6 +117,10 @@ def main() -> None:
         f"torch eager / onnxruntime = {result['torch_over_onnxruntime']:.2f} at {small} (same run); "
         f"target: onnxruntime <= {TARGET_MS:g} ms at {small}"
     )
+    shipped = [rows.get(f"onnxruntime, shipped {k} file", {}).get(small) for k in ("8-bit", "float")]
+    if None not in shipped:
+        result["int8_over_float"] = shipped[0]["ms_median"] / shipped[1]["ms_median"]
+        print(f"shipped 8-bit / float = {result['int8_over_float']:.2f} at {small} (same run)")
     if args.compare is not None:
         other = rows[f"onnxruntime, {args.compare.name}"][small]["ms_median"]
         result["compare_over_shipped"] = other / rows["onnxruntime"][small]["ms_median"]

@@ -4,11 +4,13 @@ matcher, told apart by the checkpoint).
 The graph takes *normalised* inputs (the contract in the metadata says how to make them), has
 dynamic batch, height and width, and is verified three ways before it is written: ``onnx.checker``,
 onnxruntime against torch on a shape other than the export shape (max abs diff of the output),
-and the metadata read back the way the run-time classes read it.
+and the metadata read back the way the run-time classes read it. A support predictor can then be
+quantised to 8 bits (:func:`quantise_onnx`), checked against the float model the same way.
 """
 
 from __future__ import annotations
 
+import logging
 import warnings
 from pathlib import Path
 
@@ -24,7 +26,15 @@ from supportnet.nets.flow_net import LIDAR_CHANNELS, FlowConfig, FlowNet
 from supportnet.nets.support_unet import CoarseLogits, ModelConfig, SupportUNet
 from supportnet.runtime.support_predictor import open_model
 
-__all__ = ["OPSETS", "check_opset", "export_network", "export_onnx", "load_checkpoint"]
+__all__ = [
+    "OPSETS",
+    "check_opset",
+    "export_network",
+    "export_onnx",
+    "load_checkpoint",
+    "quantise_onnx",
+    "run_time_images",
+]
 
 EXPORT_SIZE = (128, 320)
 CHECK_SHAPE = (2, 3, 97, 203)
@@ -182,4 +192,122 @@ def _export(
         "parity_shape": list(CHECK_SHAPE),
         "max_abs_diff": diff,
         "contract": contract.to_json(),
+    }
+
+
+def run_time_images(model: Path, sources: list[tuple[Path, str | None]], frames: int) -> np.ndarray:
+    """``(B, H, W, 3)`` uint8: ``frames`` images spread over each dataset ``(data, sequence)`` of
+    ``sources``, as the run time gives them to the support predictor ``model``
+    (:func:`~supportnet.runtime.support_sources.predict_frame`: at the focal length it learned at)."""
+    from calib.data import open_dataset
+    from calib.match.correspondences import working_view
+    from calib.pipeline import select_frames
+
+    _, contract = open_model(Path(model), "logits")
+    focal = contract.extra.get("working_focal_px")
+    images = []
+    for data, sequence in sources:
+        with open_dataset(data, sequence=sequence) as seq:
+            for i in select_frames(len(seq), frames):
+                frame = seq[int(i)]
+                images.append(frame.image if focal is None else working_view(frame, float(focal)).image)
+    if len({image.shape for image in images}) > 1:
+        raise DataError(Path(sources[0][0]), "the datasets' images differ in size at the model's scale")
+    return np.stack(images)
+
+
+QUANTISED = "supportnet.quantised"
+"""Metadata key of a quantised model: how it was quantised, from what, on how many images."""
+
+
+def quantise_onnx(
+    model: Path, out: Path, images: np.ndarray, overwrite: bool = False, tolerance: float = 0.1
+) -> dict:
+    """Quantise an exported support predictor to 8 bits and write ``out``; returns the checks'
+    figures.
+
+    onnxruntime's static quantisation: weights int8 per output channel, activations uint8 with
+    ranges observed on ``images`` (the float model run on each, through its contract's
+    pre-processing), integer operators (QOperator, which ran the shipped predictor in 0.69x the
+    float model's time on a 2-core AVX-512 machine, against 0.82x as QDQ). The contract is carried
+    over; the check runs both models on two of ``images`` cropped to :data:`CHECK_SHAPE` (a shape
+    other than the export shape) and compares their support (the sigmoid of the logits).
+
+    Args:
+        model: a float support predictor (``supportnet export``). images: ``(B, H, W, 3)`` uint8
+            RGB of the data it will see, at its training size.
+
+    Raises:
+        DataError: ``out`` exists (without ``overwrite``), ``model`` is unusable or not a support
+            predictor, or there are no images.
+        NumericalError: the supports differ by more than ``tolerance`` somewhere.
+    """
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    model, out = Path(model), Path(out)
+    claim_output(out, overwrite, [model], file=True)
+    session, contract = open_model(model, "logits")
+    images = np.asarray(images)
+    if images.ndim != 4 or len(images) == 0 or images.dtype != np.uint8:
+        raise DataError(
+            model, f"quantising needs (B, H, W, 3) uint8 images, got {images.shape} {images.dtype}"
+        )
+    name = session.get_inputs()[0].name
+
+    class Images(CalibrationDataReader):
+        def __init__(self) -> None:
+            self.left = iter(images)
+
+        def get_next(self) -> dict | None:
+            image = next(self.left, None)
+            return None if image is None else {name: contract.preprocess(image[None])}
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp, prepared = temp_path(out), temp_path(out.with_suffix(".pre.onnx"))
+    try:
+        root, level = logging.getLogger(), logging.getLogger().level
+        root.setLevel(logging.ERROR)  # the quantiser logs each integer shape tensor it leaves as it is
+        try:
+            quant_pre_process(str(model), str(prepared), skip_symbolic_shape=True)  # folded, shapes known
+            quantize_static(
+                str(prepared),
+                str(tmp),
+                Images(),
+                quant_format=QuantFormat.QOperator,
+                per_channel=True,
+                activation_type=QuantType.QUInt8,
+                weight_type=QuantType.QInt8,
+            )
+        finally:
+            root.setLevel(level)
+        source, quantised = onnx.load(str(model)), onnx.load(str(tmp))
+        props = {p.key: p.value for p in source.metadata_props}
+        props[QUANTISED] = f"int8 static (QOperator, per channel) of {model.name} on {len(images)} images"
+        quantised.doc_string = source.doc_string
+        onnx.helper.set_model_props(quantised, props)
+        onnx.save(quantised, str(tmp))
+        small, read_back = open_model(tmp, "logits")
+        if read_back != contract:
+            raise NumericalError(f"{tmp}: the contract read back differs from the float model's")
+        h, w = CHECK_SHAPE[2:]
+        check = contract.preprocess(np.ascontiguousarray(images[:2, :h, :w]))
+        expected, actual = (1 / (1 + np.exp(-s.run(None, {name: check})[0])) for s in (session, small))
+        diff = float(np.abs(actual - expected).max())
+        if actual.shape != expected.shape or not diff <= tolerance:
+            raise NumericalError(
+                f"the 8-bit model's support differs from the float model's by {diff:.3f} > {tolerance} "
+                f"on {check.shape}"
+            )
+        tmp.replace(out)
+    finally:
+        tmp.unlink(missing_ok=True)
+        prepared.unlink(missing_ok=True)
+    return {
+        "model": str(out),
+        "from": str(model),
+        "bytes": out.stat().st_size,
+        "calibration_images": len(images),
+        "parity_shape": list(check.shape),
+        "max_abs_support_diff": diff,
     }

@@ -92,6 +92,7 @@ def test_the_wheel_carries_defaults_models_cards_and_entry_points(tmp_path: Path
     missing = [p for p in PACKAGED.values() if p not in names]
     for model in MODELS:
         missing += [f"supportnet/assets/{model}.{ext}" for ext in ("onnx", "json")]
+    missing.append("supportnet/assets/support_unet_int8.onnx")  # what --support onnx runs
     missing = [p for p in missing if p not in names]
     assert not missing, f"not in the wheel: {missing}"
     assert any(n.startswith(f"{dist_info}/licenses/LICENSE") for n in names)

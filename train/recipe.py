@@ -8,9 +8,11 @@ The support predictor:
    synth --small``) the shipped models were trained on.
 2. Offline support maps of each (Stage 3 under the reference calibration).
 3. Training with ``configs/train.yaml`` (its sources are the folders written here).
-4. Export to ONNX (checked) as ``supportnet/assets/support_unet.onnx``.
-5. Scores of the exported model on the held-out sequences against their offline maps, written
-   with the training summary as the model card ``support_unet.json`` beside it.
+4. Export to ONNX (checked) as ``supportnet/assets/support_unet.onnx``, and that quantised to 8
+   bits on the training sequences' images (checked against it) as ``support_unet_int8.onnx``,
+   the model Stage 3 runs by default.
+5. Scores of both on the held-out sequences against their offline maps, written with the
+   training summary as the model card ``support_unet.json`` beside them.
 
 The flow matcher: full-resolution synthetic sequences, 16 seeds of each world (no maps needed),
 packed into frame packs (``train.flow_data.write_frames``), trained with
@@ -35,14 +37,14 @@ import typer
 from rich.console import Console
 
 from calib.support.support_maps import load_maps_config
-from export.onnx_export import export_onnx
+from export.onnx_export import export_onnx, quantise_onnx, run_time_images
 from supportnet.cli.cmd_maps import run_maps
 from supportnet.cli.cmd_predict import run_predict
 from supportnet.cli.cmd_synth import run_synth
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import write_json
 from supportnet.runtime.flow_matcher import SHIPPED_FLOW_MODEL
-from supportnet.runtime.support_predictor import SHIPPED_MODEL
+from supportnet.runtime.support_predictor import SHIPPED_FLOAT_MODEL, SHIPPED_MODEL
 from train.fit import run_train, run_train_flow
 from train.train_config import FlowTrainConfig, TrainConfig, load_train_config
 
@@ -106,32 +108,65 @@ def make_model(
     frames: Annotated[int, typer.Option(help="Frames per synthetic sequence.")] = 80,
     config: Annotated[Path, typer.Option(help="Training config.")] = Path("configs/train.yaml"),
     out: Annotated[Path, typer.Option(help="ONNX file to write; its model card goes beside it.")] = (
-        SHIPPED_MODEL
+        SHIPPED_FLOAT_MODEL
     ),
+    int8_out: Annotated[Path, typer.Option(help="The 8-bit model to write.")] = SHIPPED_MODEL,
+    int8_frames: Annotated[int, typer.Option(help="Images per training sequence for its ranges.")] = 8,
 ) -> None:
-    """The support predictor."""
+    """The support predictor, as trained and quantised to 8 bits."""
     console = make_console()
     start = time.perf_counter()
     train_config = load_train_config(config)
     _synthesise(train_config.data.sources, frames, console, small=True)
     summary = _trained(train_config, run_train, console)
     report = export_onnx(Path(summary["best_checkpoint"]), out, overwrite=True)
-    held_out = {}
-    for source in (s for s in train_config.data.sources if s.split == "val"):
-        name = f"{Path(source.data).name}_{source.sequence}"
-        scores = run_predict(
-            out,
-            source.data,
-            source.sequence,
-            Path("build/model/predicted") / name,
-            source.maps,
-            True,
-            console,
-        )
-        held_out[name] = {k: scores[k] for k in ("per_frame", "sequence_map")}
     card = _card(out, report, train_config, frames, summary, "best_val_pearson", start)
+    _quantised(card, out, int8_out, train_config, int8_frames, console)
+
+
+@app.command("support-int8")
+def make_int8_model(
+    frames: Annotated[int, typer.Option(help="Frames per synthetic sequence.")] = 80,
+    config: Annotated[Path, typer.Option(help="Training config.")] = Path("configs/train.yaml"),
+    model: Annotated[Path, typer.Option(help="The float model; its card is updated.")] = SHIPPED_FLOAT_MODEL,
+    int8_out: Annotated[Path, typer.Option(help="The 8-bit model to write.")] = SHIPPED_MODEL,
+    int8_frames: Annotated[int, typer.Option(help="Images per training sequence for its ranges.")] = 8,
+) -> None:
+    """The 8-bit support predictor alone, from the float one (its training data re-made)."""
+    console = make_console()
+    train_config = load_train_config(config)
+    _synthesise(train_config.data.sources, frames, console, small=True)
+    card = json.loads(model.with_suffix(".json").read_text())
+    _quantised(card, model, int8_out, train_config, int8_frames, console)
+
+
+def _quantised(
+    card: dict, out: Path, int8_out: Path, config: TrainConfig, frames: int, console: Console
+) -> None:
+    """Quantise ``out`` to ``int8_out`` on ``frames`` images of each training sequence, score both
+    on the held-out sequences, and write the model card (``card`` with both) beside ``out``."""
+    trained_on = [(Path(s.data), s.sequence) for s in config.data.sources if s.split == "train"]
+    quantised = quantise_onnx(out, int8_out, run_time_images(out, trained_on, frames), overwrite=True)
+    held_out: dict = {out.name: {}, int8_out.name: {}}
+    for model in (out, int8_out):
+        for source in (s for s in config.data.sources if s.split == "val"):
+            name = f"{Path(source.data).name}_{source.sequence}"
+            scores = run_predict(
+                model,
+                source.data,
+                source.sequence,
+                Path("build/model/predicted") / model.stem / name,
+                source.maps,
+                True,
+                console,
+            )
+            held_out[model.name][name] = {k: scores[k] for k in ("per_frame", "sequence_map")}
+    card["int8"] = {"model": int8_out.name} | {
+        k: quantised[k] for k in ("bytes", "calibration_images", "max_abs_support_diff")
+    }
     card["held_out_scores"] = held_out
     write_json(out.with_suffix(".json"), card)
+    console.print(json.dumps(held_out, indent=1), markup=False, highlight=False)
     console.print(json.dumps(card["held_out_scores"], indent=1), markup=False, highlight=False)
 
 

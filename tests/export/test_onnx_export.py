@@ -8,8 +8,17 @@ import pytest
 import torch
 
 from calib.data.types import Calibration, Frame
-from calib.errors import ConfigError, DataError
-from export.onnx_export import CHECK_SHAPE, export_network, export_onnx, load_checkpoint
+from calib.errors import ConfigError, DataError, NumericalError
+from calib.synth.generate import Synthesizer, write_sequence
+from calib.synth.synth_config import load_synth_config
+from export.onnx_export import (
+    CHECK_SHAPE,
+    QUANTISED,
+    export_network,
+    export_onnx,
+    load_checkpoint,
+    quantise_onnx,
+)
 from supportnet.nets.contract import METADATA_KEY
 from supportnet.nets.support_unet import ModelConfig, SupportUNet
 from supportnet.runtime.support_predictor import SupportPredictor
@@ -98,6 +107,65 @@ def test_a_frame_is_predicted_at_the_focal_length_the_model_learned(exported):
     assert support.shape == (60, 96) and support.dtype == np.float32
     assert np.allclose(support, cv2.resize(halved, (96, 60), interpolation=cv2.INTER_LINEAR), atol=1e-6)
     assert not np.allclose(support, predictor.predict(far.image)[0], atol=1e-3)
+
+
+def _scenes(count: int, size: tuple[int, int], seed: int) -> np.ndarray:
+    """``(count, H, W, 3)`` uint8 images with structure at several scales, as frames have."""
+    rng = np.random.default_rng(seed)
+    images = [
+        cv2.GaussianBlur(rng.random((*size, 3), np.float32), (0, 0), s) for s in rng.uniform(1, 6, count)
+    ]
+    return np.stack([np.clip(255 * (0.5 + 6 * (x - x.mean())), 0, 255).astype(np.uint8) for x in images])
+
+
+def test_an_8_bit_model_predicts_as_the_float_one_on_another_shape(exported, tmp_path):
+    """Quantised on 12 images of one size, it carries the float model's contract and predicts its
+    support within 0.05 on images of another size; the check it runs is real (a tolerance of 0
+    refuses it)."""
+    out, _ = exported
+    q = tmp_path / "int8.onnx"
+    report = quantise_onnx(out, q, _scenes(12, (60, 96), 0))
+    assert 0 < report["max_abs_support_diff"] <= 0.1 and report["calibration_images"] == 12
+    floating, quantised = SupportPredictor(out), SupportPredictor(q)
+    assert quantised.contract == floating.contract
+    props = {p.key: p.value for p in onnx.load(str(q)).metadata_props}
+    assert "int8" in props[QUANTISED] and props[METADATA_KEY] == json.dumps(json.loads(props[METADATA_KEY]))
+    images = _scenes(3, (51, 77), 1)
+    assert np.abs(quantised.predict(images) - floating.predict(images)).max() < 0.05
+    with pytest.raises(NumericalError, match="8-bit model's support differs"):
+        quantise_onnx(out, tmp_path / "strict.onnx", _scenes(4, (60, 96), 0), tolerance=0.0)
+    assert not (tmp_path / "strict.onnx").exists() and not list(tmp_path.glob(".strict*"))
+
+
+def test_quantize_command_quantises_on_a_dataset_s_frames(exported, tmp_path, capsys):
+    """``supportnet quantize`` on two synthetic frames, read at the focal length the model
+    learned (40 px): the 8-bit file, checked, and one line saying so."""
+    from supportnet.cli.app import main
+
+    out, _ = exported
+    write_sequence(Synthesizer(load_synth_config("vineyard", small=True), 2, seed=4), tmp_path / "data", "00")
+    q = tmp_path / "q.onnx"
+    argv = ["supportnet", "quantize", "--model", out, "--data", tmp_path / "data", "--sequence", "00"]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("sys.argv", [*map(str, argv), "--out", str(q), "--frames", "2"])
+        with pytest.raises(SystemExit) as done:
+            main()
+    assert done.value.code == 0
+    assert SupportPredictor(q).contract == SupportPredictor(out).contract
+    assert "from 2 images" in capsys.readouterr().out
+
+
+def test_quantising_refuses_what_it_should(exported, tmp_path):
+    out, _ = exported
+    with pytest.raises(DataError, match="is also an input"):
+        quantise_onnx(out, out, _scenes(2, (60, 96), 0))
+    (tmp_path / "taken.onnx").write_text("a file of the user's")
+    with pytest.raises(DataError, match="already exists"):
+        quantise_onnx(out, tmp_path / "taken.onnx", _scenes(2, (60, 96), 0))
+    with pytest.raises(DataError, match="uint8 images"):
+        quantise_onnx(out, tmp_path / "m.onnx", _scenes(2, (60, 96), 0).astype(np.float32))
+    with pytest.raises(DataError, match="model file not found"):
+        quantise_onnx(tmp_path / "missing.onnx", tmp_path / "m.onnx", _scenes(2, (60, 96), 0))
 
 
 def test_export_refuses_what_it_should(exported, ckpt, tmp_path):
