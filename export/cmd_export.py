@@ -39,7 +39,7 @@ def quantize(
     overwrite: Overwrite = False,
 ) -> None:
     """Quantise a support predictor to 8 bits (onnxruntime's static quantisation) and check it
-    against the float model on another shape: 0.69x the time on a 2-core AVX-512 machine, the
+    against the float model on another shape: 0.67-0.81x the time on a 2-core AVX-512 machine, the
     same Pearson r against the offline maps (README, "The learned support predictor")."""
     from export.onnx_export import quantise_onnx, run_time_images
 

@@ -19,7 +19,7 @@ SHIPPED_FLOAT_MODEL = Path(__file__).resolve().parents[1] / "assets" / "support_
 """The small model trained on the synthetic worlds (``make model``), as exported."""
 SHIPPED_MODEL = SHIPPED_FLOAT_MODEL.with_name("support_unet_int8.onnx")
 """The same quantised to 8 bits (``make model``; ``python -m train.recipe support-int8`` from the
-float one), used by ``--support onnx``: 0.69x its time, the same Pearson r against the offline maps."""
+float one), used by ``--support onnx``: 0.67-0.81x its time, the same Pearson r against the offline maps."""
 
 
 class SupportPredictor:

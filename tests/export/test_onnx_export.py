@@ -132,7 +132,7 @@ def test_an_8_bit_model_predicts_as_the_float_one_on_another_shape(exported, tmp
     assert "int8" in props[QUANTISED] and props[METADATA_KEY] == json.dumps(json.loads(props[METADATA_KEY]))
     images = _scenes(3, (51, 77), 1)
     assert np.abs(quantised.predict(images) - floating.predict(images)).max() < 0.05
-    with pytest.raises(NumericalError, match="8-bit model's support differs"):
+    with pytest.raises(NumericalError, match="the 8-bit and the float model's support disagree"):
         quantise_onnx(out, tmp_path / "strict.onnx", _scenes(4, (60, 96), 0), tolerance=0.0)
     assert not (tmp_path / "strict.onnx").exists() and not list(tmp_path.glob(".strict*"))
 
