@@ -39,6 +39,7 @@ __all__ = [
     "RigCamera",
     "check_line",
     "confirms",
+    "weak_data_note",
     "load_check_config",
     "open_rig",
     "rig_cameras",
@@ -160,6 +161,19 @@ def check_line(check: dict) -> str:
     return line
 
 
+def weak_data_note(check: dict) -> str | None:
+    """What a ``suspect`` or ``bad`` verdict on data that cannot confirm an extrinsic
+    (:func:`confirms`) does not say: there a right extrinsic can read so too (one nuScenes sweep:
+    three of its six cameras' references alone; README, "Is this extrinsic right?"). ``None``
+    for a ``good`` verdict or data that shows smaller errors."""
+    if check["verdict"] == "good" or confirms(check["detectable_error"]):
+        return None
+    return (
+        "data this weak can call a right extrinsic so too: more frames, or the rig's cameras "
+        "together (--rig-camera, --rig), tell it apart"
+    )
+
+
 def _markdown(output: dict) -> str:
     c = output["suggested_correction"]
     d = output["detectable_error"]
@@ -173,6 +187,7 @@ def _markdown(output: dict) -> str:
         + f", extrinsic `{output['extrinsic']}`, {len(output['frames'])} frame(s).",
         "",
         *[f"- {r}" for r in output["reasons"]],
+        *([f"- {note}"] if (note := weak_data_note(output)) else []),
         "",
         "| | value |",
         "|---|---|",
@@ -293,8 +308,10 @@ def run_check(
         write_image(tmp / "overlay.png", _overlay(frames[0], result))
     if (other := _calibrated_elsewhere(extrinsic, data, sequence, camera)) is not None:
         console.print(other, markup=False, highlight=False, soft_wrap=True)
+    note = weak_data_note(output)
     console.print(
-        f"{check_line(output)}; {len(frames)} frame(s) in {result.runtime_s:.1f} s",
+        f"{check_line(output)}; {len(frames)} frame(s) in {result.runtime_s:.1f} s"
+        + (f". Note: {note}" if note else ""),
         markup=False,
         highlight=False,
         soft_wrap=True,

@@ -143,6 +143,22 @@ def test_a_result_calibrated_on_other_data_is_noted(world, tmp_path):
 
 
 @pytest.mark.realdata
+def test_a_verdict_not_good_on_weak_data_says_a_right_extrinsic_can_read_so_too():
+    """Data that shows errors only from 1.85° / 19.9 cm (nuScenes' back camera alone) cannot tell
+    a right extrinsic from a 1° one; a bad or suspect verdict there says so, a good one or one on
+    data that shows 0.5° / 10 cm does not (that is check_line's own note)."""
+    from supportnet.cli.cmd_check import weak_data_note
+
+    def check(verdict: str, deg: float | None, cm: float | None) -> dict:
+        return {"verdict": verdict, "detectable_error": {"rotation_deg": deg, "translation_cm": cm}}
+
+    assert "--rig-camera" in weak_data_note(check("bad", 1.85, 19.9))
+    assert weak_data_note(check("suspect", 0.5, 30.0)) is not None
+    assert weak_data_note(check("suspect", None, 10.0)) is not None
+    assert weak_data_note(check("bad", 0.5, 10.0)) is None
+    assert weak_data_note(check("good", 1.85, 19.9)) is None
+
+
 def test_check_a_rig_of_the_six_nuscenes_cameras(realdata, tmp_path):
     """``--rig``: CAM_FRONT's reference checked with the five other cameras of the sweep is good
     (alone, the front camera's is not: README), and check.json names the rig's datasets; the same
