@@ -225,19 +225,16 @@ def _check_written(
 def run_time_images(model: Path, sources: list[tuple[Path, str | None]], frames: int) -> np.ndarray:
     """``(B, H, W, 3)`` uint8: ``frames`` images spread over each dataset ``(data, sequence)`` of
     ``sources``, as the run time gives them to the support predictor ``model``
-    (:func:`~supportnet.runtime.support_sources.predict_frame`: at the focal length it learned at)."""
+    (:func:`~supportnet.runtime.support_sources.model_image`)."""
     from calib.data import open_dataset
-    from calib.match.correspondences import working_view
     from calib.pipeline import select_frames
+    from supportnet.runtime.support_sources import model_image
 
     _, contract = open_model(Path(model), "logits")
-    focal = contract.extra.get("working_focal_px")
     images = []
     for data, sequence in sources:
         with open_dataset(data, sequence=sequence) as seq:
-            for i in select_frames(len(seq), frames):
-                frame = seq[int(i)]
-                images.append(frame.image if focal is None else working_view(frame, float(focal)).image)
+            images += [model_image(contract, seq[int(i)]) for i in select_frames(len(seq), frames)]
     if len({image.shape for image in images}) > 1:
         raise DataError(Path(sources[0][0]), "the datasets' images differ in size at the model's scale")
     return np.stack(images)

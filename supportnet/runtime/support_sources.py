@@ -15,9 +15,17 @@ from calib.errors import ConfigError
 from calib.match.correspondences import working_view
 from calib.support.map_files import load_sequence_maps
 from calib.support.source import MapSupport, SupportSource, UniformSupport
+from supportnet.nets.contract import Contract
 from supportnet.runtime.support_predictor import SHIPPED_MODEL, SupportPredictor
 
-__all__ = ["PredictedSupport", "offline_maps_folders", "parse_supports", "predict_frame", "resolve_support"]
+__all__ = [
+    "PredictedSupport",
+    "model_image",
+    "offline_maps_folders",
+    "parse_supports",
+    "predict_frame",
+    "resolve_support",
+]
 
 
 class PredictedSupport:
@@ -43,16 +51,19 @@ class PredictedSupport:
         return self._maps[key]
 
 
+def model_image(contract: Contract, frame: Frame) -> np.ndarray:
+    """``frame``'s image as a model of ``contract`` sees it: where the contract names the focal
+    length it learned at (``working_focal_px``) and the frame's is longer, resampled down to it
+    (:func:`~calib.match.correspondences.working_view`), so a model trained on 624x188 frames sees
+    a full-resolution camera's at its own scale."""
+    focal = contract.extra.get("working_focal_px")
+    return frame.image if focal is None else working_view(frame, float(focal)).image
+
+
 def predict_frame(predictor: SupportPredictor, frame: Frame) -> np.ndarray:
-    """``(H, W)`` the support of ``frame``'s image. Where the model's contract names the focal length
-    it learned at (``working_focal_px``) and the frame's is longer, the image is resampled down to it
-    (:func:`~calib.match.correspondences.working_view`) and the map back up (bilinear), so a model
-    trained on 624x188 frames sees a full-resolution camera's at its own scale."""
-    focal = predictor.contract.extra.get("working_focal_px")
-    if focal is None:
-        return predictor.predict(frame.image)[0]
-    view = working_view(frame, float(focal))
-    support = predictor.predict(view.image)[0]
+    """``(H, W)`` the support of ``frame``'s image, predicted on :func:`model_image` and the map
+    brought back to the frame's size (bilinear)."""
+    support = predictor.predict(model_image(predictor.contract, frame))[0]
     H, W = frame.image_size
     if support.shape == (H, W):
         return support
