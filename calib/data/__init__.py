@@ -43,6 +43,33 @@ def detect_layout(path: Path) -> str:
     raise DataError(path, f"unknown data layout; expected {_EXPECTED}")
 
 
+BAG_KEYS = {"image": "image", "cloud": "cloud", "info": "camera_info"}
+
+
+def bag_choice(path: Path, camera: str, topics: BagTopics, max_gap: float) -> tuple[BagTopics, float]:
+    """A bag's ``--camera``: its image topic, or ``key=value`` pairs of :data:`BAG_KEYS` and
+    ``max_gap_ms`` (the largest camera–LiDAR stamp difference of a pair)."""
+    if "=" not in camera:
+        return replace(topics, image=camera), max_gap
+    keys = ", ".join([*BAG_KEYS, "max_gap_ms"])
+    for part in camera.split(","):
+        key, sep, value = (s.strip() for s in part.partition("="))
+        if not sep or not value:
+            raise DataError(path, f"--camera {camera!r}: {part!r} is not KEY=VALUE ({keys})")
+        if key == "max_gap_ms":
+            try:
+                max_gap = float(value) / 1000
+            except ValueError:
+                max_gap = -1.0
+            if not 0 < max_gap <= 10:
+                raise DataError(path, f"--camera max_gap_ms={value}: give milliseconds in (0, 10000]")
+        elif key in BAG_KEYS:
+            topics = replace(topics, **{BAG_KEYS[key]: value})
+        else:
+            raise DataError(path, f"--camera {camera!r}: unknown key {key!r} ({keys})")
+    return topics, max_gap
+
+
 def open_dataset(
     path: Path | str,
     sequence: str | None = None,
@@ -60,7 +87,9 @@ def open_dataset(
             token) where the path holds several. Layouts holding one sequence (KITTI object,
             custom, a bag) refuse it.
         camera: which camera where the layout has several: a KITTI index (``2``, ``"2"``,
-            ``"image_02"``), a bag's image topic (``"/cam_left/image_raw"``) or a nuScenes channel
+            ``"image_02"``), a bag's image topic (``"/cam_left/image_raw"``; or its topics as
+            ``"image=/cam/image_raw,cloud=/os1/points,info=/cam/camera_info,max_gap_ms=20"``,
+            any of them) or a nuScenes channel
             (``"CAM_BACK"``). ``None``: the layout's default (KITTI camera 2, or the only one
             present; a bag's only image topic; nuScenes' ``CAM_FRONT``). One that is not there
             is refused with a line listing those that are. The custom layout has one camera and
@@ -76,7 +105,7 @@ def open_dataset(
     if layout == "rosbag":
         refuse_sequence(path, sequence, "a ROS bag")
         if camera is not None:
-            topics = replace(topics, image=str(camera))
+            topics, max_gap = bag_choice(path, str(camera), topics, max_gap)
         seq: Sequence = BagSequence(path, topics=topics, max_gap=max_gap)
     elif layout == "kitti_odometry":
         seq = read_kitti_odometry(path, sequence, camera=camera)

@@ -98,8 +98,12 @@ def lzf_decompress(data: bytes, expected_size: int) -> bytes:
             continue
         length = ctrl >> 5
         if length == 7:
+            if i >= n:
+                raise ValueError("compressed data end inside a back reference")
             length += data[i]
             i += 1
+        if i >= n:
+            raise ValueError("compressed data end inside a back reference")
         start = len(out) - ((ctrl & 0x1F) << 8) - data[i] - 1
         i += 1
         length += 2
@@ -157,7 +161,8 @@ def read_pcd_fields(path: Path) -> tuple[dict[str, np.ndarray], int]:
     raw = path.read_bytes()
     header, offset = _pcd_header(raw, path)
     try:
-        fields = header["FIELDS"]
+        # PCL pads with fields named "_" (as many as it needs): each gets a name of its own
+        fields = [f"_{k}" if f == "_" else f for k, f in enumerate(header["FIELDS"])]
         sizes = [int(s) for s in header["SIZE"]]
         types = header["TYPE"]
         counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
@@ -176,7 +181,12 @@ def read_pcd_fields(path: Path) -> tuple[dict[str, np.ndarray], int]:
     try:
         if kind == "ascii":
             table = np.loadtxt(body.decode("ascii").splitlines(), dtype=np.float64, ndmin=2)
-            cloud = {f: table[:, i] for i, f in enumerate(fields)} if n else {}
+            if n and table.shape[1] != sum(counts):
+                raise ValueError(f"{table.shape[1]} columns for fields of {sum(counts)} values")
+            first = np.cumsum([0, *counts[:-1]])  # a field of COUNT c spans c columns
+            cloud = {}
+            for f, k, c in zip(fields, first, counts, strict=True) if n else ():
+                cloud[f] = table[:, k] if c == 1 else table[:, k : k + c]
         elif kind == "binary":
             array = np.frombuffer(body, dtype=dtype, count=n)
             cloud = {f: array[f] for f in fields}
@@ -190,7 +200,7 @@ def read_pcd_fields(path: Path) -> tuple[dict[str, np.ndarray], int]:
                 pos += sub.itemsize * n
         else:
             raise DataError(path, f"unknown PCD DATA kind {kind!r}")
-    except (ValueError, TypeError) as exc:
+    except (ValueError, TypeError, IndexError) as exc:
         raise DataError(path, f"PCD body does not parse ({exc})") from None
     if n == 0:
         raise DataError(path, "empty scan (0 points)")
@@ -225,14 +235,27 @@ def write_pcd(path: Path, points: np.ndarray) -> None:
 
 
 def read_npy_scan(path: Path) -> np.ndarray:
-    """A ``.npy`` array ``(N, 3)`` or ``(N, >=4)``; the fourth column is intensity."""
+    """A ``.npy`` array ``(N, 3)`` or ``(N, >=4)``, the fourth column intensity; or a structured
+    array ``(N,)`` with fields ``x``, ``y``, ``z`` and optionally ``intensity`` (``reflectivity``,
+    ``i``), as ``ros_numpy`` writes a PointCloud2."""
     path = Path(path)
     require_file(path)
     try:
         array = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
         raise DataError(path, f"not a readable .npy array ({exc})") from None
-    return validate_points(np.asarray(array, dtype=np.float64), path)
+    if array.dtype.names is not None:
+        names = array.dtype.names
+        if not {"x", "y", "z"} <= set(names):
+            raise DataError(path, f"structured array without x, y, z fields (fields: {' '.join(names)})")
+        inten = next((f for f in ("intensity", "reflectivity", "i") if f in names), None)
+        columns = [array[f] for f in ("x", "y", "z")] + ([array[inten]] if inten else [])
+        array = np.stack([np.asarray(c, dtype=np.float64).reshape(-1) for c in columns], axis=1)
+    try:
+        array = np.asarray(array, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DataError(path, f"not an array of numbers ({exc})") from None
+    return validate_points(array, path)
 
 
 _SCAN_READERS: dict[str, Callable[[Path], np.ndarray]] = {

@@ -235,9 +235,9 @@ class KittiOdometryWriter:
     def close(self, poses_lidar: np.ndarray | None = None) -> Path:
         """Write ``times.txt`` and, given ``(len, 4, 4)`` LiDAR poses, ``poses/<sequence>.txt``
         (as camera-0 poses, KITTI's convention). Returns the sequence folder."""
-        atomic_write_text(self.seq_dir / "times.txt", "".join(f"{t:.6e}\n" for t in self._times))
+        atomic_write_text(self.seq_dir / "times.txt", "".join(f"{t:.9f}\n" for t in self._times))
         if self._lidar_times and all(t is not None for t in self._lidar_times):
-            text = "".join(f"{t:.6e}\n" for t in self._lidar_times)
+            text = "".join(f"{t:.9f}\n" for t in self._lidar_times)
             atomic_write_text(self.seq_dir / "times_lidar.txt", text)
         if poses_lidar is not None:
             Tr = self.calibration.T_cam_lidar

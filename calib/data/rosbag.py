@@ -5,8 +5,13 @@ Topics are given by option or found by message type (``sensor_msgs/Image`` or
 the candidates). Each camera image is paired with the scan of nearest header time stamp; pairs
 farther apart than ``max_gap`` seconds are dropped, and each scan is used at most once.
 
-Intrinsics come from ``camera_info``: ``K`` and the distortion ``D`` (images undistorted on load
-keeping ``K``), except for a ``*rect*`` image topic, whose ``P[:3, :3]`` is used as is.
+Intrinsics come from ``camera_info``: ``K`` and the distortion ``D`` (``plumb_bob``,
+``rational_polynomial`` or ``equidistant``; images undistorted on load keeping ``K``), except for a
+``*rect*`` image topic, whose ``P[:3, :3]`` is used as is.
+
+Per-point times: Ouster's ``t`` (ns after the scan's start), Velodyne's ``time`` (s after the
+stamp), or an absolute ``timestamp`` in s or ns (Hesai, RoboSense, Livox); times that fit one
+sweep about the stamp in no unit are left out, with a note.
 
 Transform: ROS TF messages hold ``T_parent_child`` (a child-frame point mapped into the parent).
 ``/tf_static`` is searched for a chain between the cloud's and the image's ``frame_id``;
@@ -36,6 +41,9 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
 INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
+# camera_info distortion models: OpenCV's cv2.undistort takes the first two, cv2.fisheye the others
+PINHOLE_MODELS = ("plumb_bob", "rational_polynomial")
+FISHEYE_MODELS = ("equidistant", "fisheye")
 _POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 
 
@@ -97,35 +105,46 @@ def decode_image(msg: object, msgtype: str, where: str) -> np.ndarray:
 
 
 def decode_cloud(msg: object, where: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """``PointCloud2`` -> ``(N, 4)`` float32 points and per-point times in seconds (or ``None``).
+    """``PointCloud2`` -> ``(N, 4)`` float32 points and per-point times in seconds after the
+    header stamp (or ``None``; see :func:`point_times`).
 
-    NaN rows of a cloud with ``is_dense = false`` are no-returns and are dropped.
+    NaN rows of a cloud with ``is_dense = false`` are no-returns and are dropped. Rows may be
+    padded (``row_step`` beyond ``width · point_step``); a field of ``count`` > 1 is read by its
+    first value.
     """
     fields = {f.name: f for f in msg.fields}  # type: ignore[attr-defined]
     if not {"x", "y", "z"} <= set(fields):
         raise DataError(where, f"PointCloud2 has no x, y, z fields (has {', '.join(fields)})")
     order = ">" if msg.is_bigendian else "<"  # type: ignore[attr-defined]
     names = [n for n in fields if fields[n].datatype in _POINTFIELD_DTYPES]
+    height, width = int(msg.height), int(msg.width)  # type: ignore[attr-defined]
+    step, row_step = int(msg.point_step), int(msg.row_step)  # type: ignore[attr-defined]
+    end = max(fields[n].offset + np.dtype(_POINTFIELD_DTYPES[fields[n].datatype]).itemsize for n in names)
+    if step < end:
+        raise DataError(where, f"PointCloud2 point_step {step} is shorter than its fields ({end} bytes)")
+    row_step = row_step or width * step  # some writers leave it 0
+    data = np.asarray(msg.data, dtype=np.uint8)  # type: ignore[attr-defined]
+    if row_step < width * step or data.size < (height - 1) * row_step + width * step:
+        raise DataError(
+            where,
+            f"PointCloud2 holds {data.size} bytes for {height} x {width} points of {step} bytes "
+            f"(row_step {row_step})",
+        )
     dtype = np.dtype(
         {
             "names": names,
             "formats": [order + _POINTFIELD_DTYPES[fields[n].datatype] for n in names],
             "offsets": [fields[n].offset for n in names],
-            "itemsize": msg.point_step,  # type: ignore[attr-defined]
+            "itemsize": step,
         }
     )
-    n = msg.height * msg.width  # type: ignore[attr-defined]
-    cloud = np.frombuffer(np.asarray(msg.data, dtype=np.uint8).tobytes(), dtype=dtype, count=n)  # type: ignore[attr-defined]
+    rows = [data[r * row_step : r * row_step + width * step] for r in range(height)]
+    cloud = np.frombuffer(np.concatenate(rows).tobytes() if height > 1 else rows[0].tobytes(), dtype=dtype)
+    n = len(cloud)
     intensity = next((f for f in ("intensity", "reflectivity", "i") if f in names), None)
     columns = [cloud["x"], cloud["y"], cloud["z"], cloud[intensity] if intensity else np.zeros(n)]
     points = np.stack([c.astype(np.float64) for c in columns], axis=1)
-    times = None
-    if "t" in names:  # Ouster: uint32 nanoseconds since the scan start
-        times = cloud["t"].astype(np.float64) * 1e-9
-    elif "time" in names:  # Velodyne driver: float seconds relative to the stamp
-        times = cloud["time"].astype(np.float64)
-    elif "timestamp" in names:  # absolute seconds
-        times = cloud["timestamp"].astype(np.float64) - _stamp(msg)
+    times = point_times(cloud, names, _stamp(msg))
     dense = bool(msg.is_dense)  # type: ignore[attr-defined]
     finite = np.isfinite(points).all(axis=1)
     if times is not None and not dense:
@@ -133,10 +152,42 @@ def decode_cloud(msg: object, where: str) -> tuple[np.ndarray, np.ndarray | None
     return validate_points(points, Path(where), drop_nonfinite=not dense), times
 
 
+# Time fields drivers write, as the seconds one unit is: Ouster ``t`` (uint32 ns after the scan's
+# start), Velodyne ``time`` (float s after the stamp); ``timestamp`` is absolute, in seconds
+# (Hesai, RoboSense) or nanoseconds (Livox's PointXYZRTLT), told apart by its size.
+_RELATIVE_TIMES = {"t": 1e-9, "time": 1.0}
+_ABSOLUTE_SCALES = (1.0, 1e-3, 1e-6, 1e-9)  # s, ms, µs, ns
+SWEEP_LIMIT_S = 1.0  # per-point times farther from the stamp are not one sweep's
+
+
+def point_times(cloud: np.ndarray, names: list[str], stamp_s: float) -> np.ndarray | None:
+    """Per-point times of a structured cloud, in seconds after the stamp ``stamp_s``, or ``None``
+    where it has no time field or its times do not fit one sweep about the stamp (an unknown
+    unit: better no times than wrong ones, which would deskew the scan by metres)."""
+    for name, scale in _RELATIVE_TIMES.items():
+        if name in names:
+            times = cloud[name].astype(np.float64) * scale
+            break
+    else:
+        if "timestamp" not in names:
+            return None
+        raw = cloud["timestamp"].astype(np.float64)
+        middle = float(np.median(raw)) if len(raw) else 0.0
+        # the unit that puts the sweep's middle nearest the stamp
+        scale = min(_ABSOLUTE_SCALES, key=lambda s: abs(middle * s - stamp_s))
+        times = raw * scale - stamp_s
+    finite = times[np.isfinite(times)]
+    if finite.size and np.abs(finite).max() > SWEEP_LIMIT_S:
+        return None
+    return times
+
+
 def _tf_tree(reader: AnyReader) -> dict[str, tuple[str, np.ndarray]]:
     """``child -> (parent, T_parent_child)`` from every ``/tf_static`` message."""
     tree: dict[str, tuple[str, np.ndarray]] = {}
     connections = [c for c in reader.connections if c.msgtype == TF_TYPE and c.topic == "/tf_static"]
+    if not connections:  # rosbags reads an empty list as every connection
+        return tree
     for connection, _, raw in reader.messages(connections=connections):
         for tf in reader.deserialize(raw, connection.msgtype).transforms:
             q, t = tf.transform.rotation, tf.transform.translation
@@ -222,8 +273,14 @@ class BagSequence(Sequence):
         self._cloud_times_ns = [cloud_stamps[j][1] for _, j in self._pairs]
         for times, connection in ((self.timestamps, self._image), (self._lidar_times, self._cloud)):
             self.problems += time_problems(times, f"{self.path} [{connection.topic}]", "header stamp")
+        first_cloud = self._first(self._cloud)
+        time_fields = [f.name for f in first_cloud.fields if f.name in ("t", "time", "timestamp")]
+        if time_fields and decode_cloud(first_cloud, f"{self.path} [{self._cloud.topic}]")[1] is None:
+            self.notes.append(
+                f"the cloud's per-point times ({time_fields[0]}) do not fit one sweep about its stamp "
+                f"in any unit: read without them (not deskewed)"
+            )
         if T_cam_lidar is None:
-            first_cloud = self._first(self._cloud)
             T_cam_lidar = lookup_T_cam_lidar(
                 _tf_tree(self.reader),
                 info.header.frame_id.lstrip("/"),
@@ -244,11 +301,17 @@ class BagSequence(Sequence):
                 raise DataError(self.path, f"no {what} topic {topic!r} (available: {have})")
             return chosen[0]
         topics = sorted({c.topic for c in connections})
-        if near and len(topics) > 1:  # the camera_info beside the image topic
-            namespace = near.rsplit("/", 1)[0]
-            topics = [t for t in topics if t.startswith(namespace + "/")] or topics
+        namespace = near
+        while near and len(topics) > 1 and namespace:  # the camera_info nearest the image topic
+            namespace = namespace.rsplit("/", 1)[0]  # /cam/image_raw/compressed -> /cam/image_raw -> /cam
+            beside = [t for t in topics if t.startswith(namespace + "/")]
+            if len(beside) == 1:
+                topics = beside
         if len(topics) != 1:
-            pick = "; pick one with --camera" if what == "image" and topics else ""
+            key = {"image": "image", "point cloud": "cloud", "camera_info": "info"}[what]
+            pick = f"; pick one with --camera {key}=TOPIC" if topics else ""
+            if what == "image" and topics:
+                pick = "; pick one with --camera TOPIC"
             found = ", ".join(topics) or "none"
             raise DataError(self.path, f"found {len(topics)} {what} topics ({found}){pick}")
         return next(c for c in connections if c.topic == topics[0])
@@ -282,8 +345,22 @@ class BagSequence(Sequence):
         # copies (np.array): the message's arrays are read only, and torch warns on those
         K = np.array(_field(info, "K"), dtype=np.float64).reshape(3, 3)
         D = np.array(_field(info, "D"), dtype=np.float64)
+        model = str(getattr(info, "distortion_model", "") or "plumb_bob").lower()
         if "rect" in self._image.topic:
             K = np.array(np.asarray(_field(info, "P"), dtype=np.float64).reshape(3, 4)[:, :3])
+            D = np.zeros(0)
+        elif np.any(D) and model not in PINHOLE_MODELS + FISHEYE_MODELS:
+            raise DataError(
+                self.path,
+                f"camera_info distortion model {model!r} is not one this reader undistorts "
+                f"({', '.join(PINHOLE_MODELS + FISHEYE_MODELS)}); give rectified images (a *rect* topic)",
+            )
+        self._fisheye = None
+        if np.any(D) and model in FISHEYE_MODELS:
+            # OpenCV's fisheye model is ROS's equidistant (k1..k4); Calibration.distortion holds
+            # pinhole coefficients only, so the images are undistorted here and it stays None
+            self._fisheye = D[:4].reshape(4, 1)
+            self.notes.append(f"{model} (fisheye) images undistorted on load to the pinhole K")
             D = np.zeros(0)
         return Calibration(
             K=K,
@@ -324,6 +401,9 @@ class BagSequence(Sequence):
         self._check_image_size(i, image, where)
         if self.calibration.distortion is not None:
             image = cv2.undistort(image, self.calibration.K, self.calibration.distortion)
+        elif self._fisheye is not None:
+            K = self.calibration.K
+            image = cv2.fisheye.undistortImage(image, K, self._fisheye, Knew=K)
         points, times = decode_cloud(
             self._message(self._cloud, self._cloud_times_ns[i]), f"{self.path} [{self._cloud.topic} #{i}]"
         )
@@ -356,6 +436,9 @@ def write_bag(
     image_topic: str | None = None,
     cloud_topic: str = "/lidar/points",
     second_image_topic: str | None = None,
+    info_topic: str = "/camera/camera_info",
+    second_info_topic: str | None = None,
+    distortion: tuple[str, np.ndarray] | None = None,
 ) -> Path:
     """Write frames as a ROS bag: image (raw ``rgb8`` or JPEG), ``camera_info``, ``PointCloud2``
     (x y z intensity float32) and ``/tf_static`` holding ``T_lidar_cam`` (parent LiDAR, child
@@ -365,6 +448,10 @@ def write_bag(
         path: ``.bag`` file (``ros_version=1``) or bag folder (``ros_version=2``); must not exist.
         second_image_topic: also write each image mirrored left–right on this topic, with a
             ``camera_info`` beside it (a rig with two cameras, to pick one with ``camera``).
+        info_topic, second_info_topic: the two cameras' ``camera_info`` topics (the second's
+            default: beside its image topic).
+        distortion: ``(distortion_model, D)`` for ``camera_info`` (default: ``plumb_bob``,
+            zeros); the images are written as they are.
     """
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import Writer as Writer2
@@ -378,6 +465,7 @@ def write_bag(
     image_type = IMAGE_TYPES[1] if compressed else IMAGE_TYPES[0]
     image_topic = image_topic or ("/camera/image/compressed" if compressed else "/camera/image")
     writer = Writer1(path) if ros_version == 1 else Writer2(path, version=9)
+    model, D = distortion or ("plumb_bob", np.zeros(5))
 
     def header(t: float, frame_id: str):
         stamp = types["builtin_interfaces/msg/Time"](sec=int(t), nanosec=int(round((t % 1) * 1e9)))
@@ -390,13 +478,13 @@ def write_bag(
     with writer:
         conns = {
             "image": writer.add_connection(image_topic, image_type, typestore=store),
-            "info": writer.add_connection("/camera/camera_info", INFO_TYPE, typestore=store),
+            "info": writer.add_connection(info_topic, INFO_TYPE, typestore=store),
             "cloud": writer.add_connection(cloud_topic, CLOUD_TYPE, typestore=store),
         }
         if second_image_topic:
-            info_topic = second_image_topic.rsplit("/", 1)[0] + "/camera_info"
+            info2 = second_info_topic or second_image_topic.rsplit("/", 1)[0] + "/camera_info"
             conns["image2"] = writer.add_connection(second_image_topic, image_type, typestore=store)
-            conns["info2"] = writer.add_connection(info_topic, INFO_TYPE, typestore=store)
+            conns["info2"] = writer.add_connection(info2, INFO_TYPE, typestore=store)
         calibration = frames[0].calibration
         t0 = frames[0].timestamp or 0.0
         if calibration.T_cam_lidar is not None:
@@ -441,9 +529,9 @@ def write_bag(
                 header=header(t, camera_frame),
                 height=H,
                 width=W,
-                distortion_model="plumb_bob",
+                distortion_model=model,
                 **{
-                    case("D"): np.zeros(5),
+                    case("D"): np.asarray(D, np.float64),
                     case("K"): calibration.K.reshape(-1),
                     case("R"): np.eye(3).reshape(-1),
                     case("P"): np.hstack([calibration.K, np.zeros((3, 1))]).reshape(-1),

@@ -528,17 +528,24 @@ def paired_timestamps(
     """Time stamps of the paired ``images`` from a file holding one per image file (sorted
     order, ``all_images``); 10 Hz assumed (and noted) when the file is absent, from the files'
     numbers where every name is one (KITTI's ``0000000019.png`` is frame 19: frames 1, 6, 19 and
-    185 of a drive are not consecutive scans), else from their order. NaN and non-increasing
+    185 of a drive are not consecutive scans), else from their order. A file holding more
+    stamps than images, where every name is a number within it, is read by those numbers (a
+    drive with frames left out). NaN and non-increasing
     stamps are appended to ``problems`` (see :func:`time_problems`)."""
     if not path.is_file():
         numbered = bool(images) and all(p.stem.isdigit() for p in images)
         numbers = [int(p.stem) for p in images] if numbered else None
         return assumed_timestamps(len(images), notes, str(path), numbers=numbers)
     stamps = parse(path)
-    if len(stamps) != len(all_images):
+    if len(stamps) == len(all_images):
+        index = {p: i for i, p in enumerate(all_images)}
+        paired = stamps[[index[p] for p in images]]
+    elif all_images and all(p.stem.isdigit() and int(p.stem) < len(stamps) for p in all_images):
+        # a drive with frames left out keeps its full stamp file: line k is frame k (KITTI raw)
+        paired = stamps[[int(p.stem) for p in images]]
+        notes.append(f"{len(all_images)} of {len(stamps)} frames present: stamps read by frame number")
+    else:
         raise DataError(path, f"holds {len(stamps)} time stamps for {len(all_images)} images")
-    index = {p: i for i, p in enumerate(all_images)}
-    paired = stamps[[index[p] for p in images]]
     if problems is not None:
         problems += time_problems(paired, path)
     return paired

@@ -25,8 +25,9 @@ Camera = Annotated[
     str | None,
     typer.Option(
         help="Camera where the dataset has several: a KITTI index (0-3; default 2, the left colour "
-        "camera), a ROS bag's image topic (default: its only one) or a nuScenes channel (default "
-        "CAM_FRONT).",
+        "camera), a ROS bag's image topic (default: its only one; or its topics as "
+        "image=TOPIC,cloud=TOPIC,info=TOPIC,max_gap_ms=MS, any of them) or a nuScenes channel "
+        "(default CAM_FRONT).",
     ),
 ]
 
