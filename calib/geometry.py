@@ -28,6 +28,7 @@ __all__ = [
     "perturb",
     "pose_error",
     "random_perturbation",
+    "se3_adjoint",
     "se3_compose",
     "se3_exp",
     "se3_inverse",
@@ -116,6 +117,14 @@ def se3_inverse(T_a_b: torch.Tensor) -> torch.Tensor:
     T_b_a[..., :3, 3] = -(R_t @ T_a_b[..., :3, 3:4])[..., 0]
     T_b_a[..., 3, 3] = 1.0
     return T_b_a
+
+
+def se3_adjoint(T_a_b: torch.Tensor) -> torch.Tensor:
+    """``(..., 6, 6)`` adjoint of ``(..., 4, 4)`` rigid transforms for twists ``(ρ, ω)``:
+    ``T · exp(ξ) = exp(Ad(T) ξ) · T``, so ``Ad(T_a_b)`` takes a twist in frame ``b`` to frame ``a``."""
+    _check_transform(T_a_b, "T_a_b")
+    with _grad_like(T_a_b):
+        return Se3.from_matrix(T_a_b).adjoint()
 
 
 def se3_compose(T_a_b: torch.Tensor, T_b_c: torch.Tensor) -> torch.Tensor:

@@ -47,7 +47,7 @@ from calib.refine.passes import (
     scan_timing,
     sweep_model,
 )
-from calib.refine.tracking import OnlineState, departure, extrinsic_of
+from calib.refine.tracking import OnlineState, departure, departure_covariance, extrinsic_of
 from calib.results import CalibrationResult, OnlineEstimate
 from calib.support.source import SupportSource, UniformSupport
 
@@ -566,7 +566,7 @@ class OnlineCalibrator:
         fitted = passes.time_offset_std_s is not None
         taken = self._state.update(
             departure(passes.T_cam_lidar, self.T_file),
-            passes.covariance,
+            departure_covariance(passes.covariance, passes.T_cam_lidar),
             # where δt may move (estimated, not fixed), what each window's fit says of it (a
             # straight one: with the extrinsic)
             mean_twist(timing.motions)

@@ -347,7 +347,9 @@ def refine_extrinsic(
     offset_std = None
     if n_params == 7:  # δt's information once the extrinsic is marginalised out (Schur complement)
         information = float(H[6, 6] - H[6, :6] @ torch.linalg.lstsq(H[:6, :6], H[:6, 6:]).solution[:, 0])
-        scale = max(variance, config.noise_floor_px**2)
+        # the floor in pixels, in the units of the weighted variance (which carries the weights'
+        # mean: support weights are not normalised)
+        scale = max(variance, config.noise_floor_px**2 * float(2 * w.sum()) / dof)
         offset_std = math.sqrt(scale / information) if information > 1e-12 * float(H[6, 6]) else math.inf
     return Refinement(
         T.numpy(),

@@ -26,10 +26,10 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat
 
-from calib.geometry import se3_exp, se3_log
+from calib.geometry import se3_adjoint, se3_exp, se3_inverse, se3_log
 from calib.results import block_std
 
-__all__ = ["OnlineConfig", "OnlineState", "departure", "extrinsic_of"]
+__all__ = ["OnlineConfig", "OnlineState", "departure", "departure_covariance", "extrinsic_of"]
 
 
 class OnlineConfig(BaseModel):
@@ -92,6 +92,14 @@ def departure(T: np.ndarray, T_file: np.ndarray) -> np.ndarray:
     return se3_log(torch.from_numpy(np.linalg.inv(T_file) @ T)).numpy()
 
 
+def departure_covariance(covariance: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``(6, 6)`` covariance of :func:`departure` ``(T, ·)`` from ``covariance (6, 6)`` of the
+    left perturbation ``T = exp(δ) · T*`` in the camera frame (a calibration's, Stage 4): the
+    departure moves by ``Ad(T⁻¹) δ``, in the LiDAR frame, to first order near the file's."""
+    Ad = se3_adjoint(se3_inverse(torch.from_numpy(np.asarray(T, np.float64)))).numpy()
+    return Ad @ np.asarray(covariance, np.float64) @ Ad.T
+
+
 def extrinsic_of(x: np.ndarray, T_file: np.ndarray) -> np.ndarray:
     """``(4, 4)`` ``T_file · exp(x)``, the inverse of :func:`departure`."""
     return T_file @ se3_exp(torch.from_numpy(np.asarray(x, np.float64))).numpy()
@@ -145,7 +153,7 @@ class OnlineState:
         elapsed_s: float | None = None,
     ) -> bool:
         """Predict one window on and fuse that window: its extrinsic's departure ``z (6,)`` with
-        covariance ``R (6, 6)``, fitted with its points moved by ``δt = used_s`` along the LiDAR's
+        covariance ``R (6, 6)`` (of ``z``, in the LiDAR frame: :func:`departure_covariance`), fitted with its points moved by ``δt = used_s`` along the LiDAR's
         mean body twist ``twist (6,)`` (``None``: not moved), and its own ``δt`` fit ``z_s`` with
         ``std_s`` where it made one.
 

@@ -12,6 +12,7 @@ from calib.geometry import (
     perturb,
     pose_error,
     random_perturbation,
+    se3_adjoint,
     se3_compose,
     se3_exp,
     se3_inverse,
@@ -165,3 +166,18 @@ def test_kabsch_recovers_a_known_rotation_and_never_a_reflection():
     fitted = kabsch(planar, planar @ R.T)
     np.testing.assert_allclose(np.linalg.det(fitted), 1.0, atol=1e-12)
     np.testing.assert_allclose(planar @ fitted.T, planar @ R.T, atol=1e-12)
+
+
+@settings(max_examples=25, deadline=None)
+@given(twists, twists)
+def test_adjoint_moves_a_twist_across_the_transform(xi_T, xi):
+    """``T · exp(ξ) · T⁻¹ = exp(Ad(T) ξ)``, batched, and ``Ad(T⁻¹) = Ad(T)⁻¹``."""
+    T = se3_exp(torch.stack([xi_T, xi_T / 2]))
+    xi = torch.stack([xi, -xi]) / 4
+    Ad = se3_adjoint(T)
+    assert Ad.shape == (2, 6, 6)
+    conjugated = T @ se3_exp(xi) @ se3_inverse(T)
+    torch.testing.assert_close(conjugated, se3_exp((Ad @ xi[..., None])[..., 0]), atol=1e-9, rtol=1e-9)
+    torch.testing.assert_close(se3_adjoint(se3_inverse(T)), torch.linalg.inv(Ad), atol=1e-9, rtol=1e-9)
+    with pytest.raises(ValueError, match="T_a_b"):
+        se3_adjoint(torch.eye(3, dtype=torch.float64))

@@ -507,9 +507,9 @@ def test_bad_extrinsics_and_learned_matchers_are_refused(frames):
 def test_online_calibrator_closes_windows_and_tracks(frames, monkeypatch):
     """Windows of 3 frames every 2, tracked; the filter takes each window's independent-residual
     covariance, the one its measurement floor was set for, not the cluster-robust one a
-    calibration reports."""
+    calibration reports, moved to the LiDAR frame its departure lives in."""
     import calib.pipeline
-    from calib.refine.tracking import OnlineState
+    from calib.refine.tracking import OnlineState, departure_covariance
 
     windows, fed = [], []
     refine_passes, update = calib.pipeline.refine_passes, OnlineState.update
@@ -530,7 +530,8 @@ def test_online_calibrator_closes_windows_and_tracks(frames, monkeypatch):
     estimates = [online.push(f) for f in frames]
     assert len(fed) == len(windows) == 3
     for R, window in zip(fed, windows, strict=True):
-        assert R is window.covariance and window.cell_covariance is not None
+        np.testing.assert_array_equal(R, departure_covariance(window.covariance, window.T_cam_lidar))
+        assert window.cell_covariance is not None
         assert not np.allclose(window.cell_covariance, window.covariance)
     closed = [e for e in estimates if e is not None]
     # windows of 3 frames every 2: [0-2], [2-4], [4-6]

@@ -191,6 +191,19 @@ def test_exact_residuals_with_a_20ms_offset_recover_it_and_the_extrinsic():
     assert 0 < result.time_offset_std_s < 1e-3
 
 
+def test_offset_std_floor_is_in_pixels_whatever_the_weights_scale():
+    """Exact residuals: δt's std rests on the 0.5 px floor alone, and support weights a tenth
+    as large (SGIS's are not normalised) mean the same pixels, so the same std."""
+    T_ref, points, scan, twists, uv = moving_scans(0.020)
+    stds = [
+        refine_extrinsic(
+            points, uv, np.full(len(points), w), KITTI_K, T_ref, time=TimeModel(scan, twists)
+        ).time_offset_std_s
+        for w in (1.0, 0.1)
+    ]
+    assert stds[0] == pytest.approx(stds[1], rel=1e-6)
+
+
 def test_a_fixed_offset_is_held_and_ignoring_it_biases_the_extrinsic():
     T_ref, points, scan, twists, uv = moving_scans(0.020)
     fixed = refine_extrinsic(
