@@ -153,9 +153,10 @@ class OnlineState:
         elapsed_s: float | None = None,
     ) -> bool:
         """Predict one window on and fuse that window: its extrinsic's departure ``z (6,)`` with
-        covariance ``R (6, 6)`` (of ``z``, in the LiDAR frame: :func:`departure_covariance`), fitted with its points moved by ``δt = used_s`` along the LiDAR's
-        mean body twist ``twist (6,)`` (``None``: not moved), and its own ``δt`` fit ``z_s`` with
-        ``std_s`` where it made one.
+        covariance ``R (6, 6)`` (of ``z``, in the LiDAR frame: :func:`departure_covariance`),
+        fitted with its points moved by ``δt = used_s`` along the LiDAR's mean body twist
+        ``twist (6,)`` (``None``: not moved), and its own ``δt`` fit ``z_s`` with ``std_s`` where it
+        made one.
 
         The clock is an offset and a rate (a skew, as two free-running clocks drift: linearly
         between corrections): over the ``elapsed_s`` seconds since the last window ``δt`` moves on
