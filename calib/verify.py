@@ -79,6 +79,7 @@ __all__ = [
     "CheckConfig",
     "CheckResult",
     "FrameCheck",
+    "OutOfView",
     "check_extrinsic",
     "inverse_hint",
     "view_share",
@@ -94,6 +95,56 @@ MIN_VIEW_SHARE = 0.002
 """An extrinsic that puts fewer of the scans' points into the image than this share is named as
 the cause when there are too few contours to check (a reference puts 9–17 % of a full scan there
 on the real fixtures)."""
+
+MIN_EDGE_SHARE = 0.001
+"""An image with fewer of its pixels than this share on a step of more than
+:data:`EDGE_STEP_GREY` grey levels to a neighbour shows no edges to check against (a lens cap,
+night, an overexposed or blank frame; real KITTI frames: 11–28 %)."""
+EDGE_STEP_GREY = 8
+
+
+def edge_share(image: np.ndarray) -> float:
+    """The share of the image's pixels whose grey level steps by more than
+    :data:`EDGE_STEP_GREY` (of 255) to the next pixel right or down (``(H, W, 3)`` uint8)."""
+    grey = image.astype(np.float32).mean(axis=2) if image.ndim == 3 else image.astype(np.float32)
+    across = np.abs(np.diff(grey, axis=1)) > EDGE_STEP_GREY
+    down = np.abs(np.diff(grey, axis=0)) > EDGE_STEP_GREY
+    return float((across.sum() + down.sum()) / max(across.size + down.size, 1))
+
+
+class OutOfView(DataError):
+    """The extrinsic puts (almost) none of the scans' points into the image, so no contour can be
+    scored: a miscalibration found (``bad``), not bad input. :meth:`to_dict` is what a check of
+    it reports (``check.json``'s verdict, exit code and reasons; no suggested correction)."""
+
+    def __init__(self, T_cam_lidar: np.ndarray, share: float, hint: str | None):
+        T = np.asarray(T_cam_lidar, np.float64)
+        reason = (
+            f"puts {share:.2%} of the scans' points into the image (T_cam_lidar takes LiDAR points "
+            "into the camera frame: x right, y down, z forward)"
+        )
+        length = float(np.linalg.norm(T[:3, 3]))
+        if length > MAX_MOUNT_M:
+            reason += f"; its translation is {length:.0f} m long: given in millimetres?"
+        if hint:
+            reason += f"; {hint}"
+        super().__init__("extrinsic", reason)
+        self.T_cam_lidar, self.share, self.reason, self.hint = T, share, reason, hint
+
+    def to_dict(self) -> dict:
+        return {
+            "schema_version": CHECK_SCHEMA_VERSION,
+            "verdict": "bad",
+            "exit_code": 1,  # as CheckResult.exit_code: a miscalibration found
+            "reasons": [f"the extrinsic {self.reason}"],
+            "T_cam_lidar": self.T_cam_lidar.tolist(),
+            "view_share": self.share,
+            "inverse_hint": self.hint,
+        }
+
+
+MAX_MOUNT_M = 10.0
+"""A camera farther than this from its LiDAR is named as a unit mistake where it sees nothing."""
 
 Verdict = Literal["good", "suspect", "bad"]
 VERDICTS: tuple[Verdict, ...] = ("good", "suspect", "bad")
@@ -529,7 +580,9 @@ def check_extrinsic(
     is then the rig's ``T_rig_lidar``) without ground truth (see the module docstring).
 
     Raises:
-        DataError: ``T_cam_lidar`` is not rigid, or the frames neither share one camera nor form a rig.
+        DataError: ``T_cam_lidar`` is not rigid, the frames neither share one camera nor form a
+            rig, or no image shows edges.
+        OutOfView: ``T_cam_lidar`` puts (almost) no point into the image: ``bad``, reported so.
         NumericalError: the scans show too few contours in the image to check anything.
     """
     with _one_thread():
@@ -545,6 +598,14 @@ def _check(
     problem = rigid_problem(T_np)
     if problem is not None:
         raise DataError("extrinsic", problem)
+    flat = [f for f in frames if edge_share(f.image) < MIN_EDGE_SHARE]
+    if len(flat) == len(frames):  # nothing to check against: every extrinsic would read good
+        raise DataError(
+            "images",
+            f"{'the image shows' if len(frames) == 1 else f'none of the {len(frames)} images shows'} "
+            "edges (black, blank or overexposed: a lens cap, night, a wrong image topic?); "
+            "nothing to check the extrinsic against",
+        )
     try:
         score = ContourScore(frames, T_np, config.contours, seed)
     except NumericalError as error:  # few contours in view: say so where the extrinsic is the cause
@@ -552,11 +613,7 @@ def _check(
         hint = inverse_hint(frames, T_np, config, own=0.0)  # too few contours under T: it aligns none
         scans = sum(len(f.points) for f in frames) >= 100 * config.min_samples  # not an empty scan's fault
         if hint is not None or (share < MIN_VIEW_SHARE and scans):
-            found = (
-                f"puts {share:.2%} of the scans' points into the image (T_cam_lidar takes LiDAR points "
-                "into the camera frame: x right, y down, z forward)"
-            )
-            raise DataError("extrinsic", found + (f"; {hint}" if hint else "")) from error
+            raise OutOfView(T_np, share, hint) from error
         raise
     T = torch.as_tensor(T_np)
     T_best = _search(score, T, config)

@@ -19,6 +19,10 @@ from calib.errors import DataError
 __all__ = ["Calibration", "FileSequence", "Frame", "MemorySequence", "Sequence", "shift_from_projection"]
 
 
+DISTORTION_SIZES = (4, 5, 8, 12, 14)
+"""The lengths of OpenCV's distortion vectors (cv2.undistort takes no other)."""
+
+
 @dataclass(frozen=True)
 class Calibration:
     """Intrinsics and extrinsics of one camera–LiDAR pair.
@@ -74,7 +78,24 @@ class Calibration:
                 raise DataError(where, f"{name} is not a rigid 4x4 transform: {problem}")
             object.__setattr__(self, name, T)
         if self.distortion is not None:
-            object.__setattr__(self, "distortion", np.array(self.distortion, dtype=np.float64))
+            try:
+                D = np.array(self.distortion, dtype=np.float64).reshape(-1)
+            except (ValueError, TypeError):
+                raise DataError(where, "distortion is not a list of numbers") from None
+            if D.size not in DISTORTION_SIZES or not np.isfinite(D).all():
+                raise DataError(
+                    where,
+                    f"distortion must be {', '.join(map(str, DISTORTION_SIZES))} finite OpenCV "
+                    f"coefficients (k1 k2 p1 p2 [k3 ...]), got {D.tolist()}",
+                )
+            object.__setattr__(self, "distortion", D)
+        if self.image_size is not None:
+            size = tuple(self.image_size)
+            if len(size) != 2 or not all(isinstance(v, (int, np.integer)) and v > 0 for v in size):
+                raise DataError(
+                    where, f"image_size must be two positive whole numbers (H, W), got {list(size)}"
+                )
+            object.__setattr__(self, "image_size", (int(size[0]), int(size[1])))
 
     def camera_extrinsic(self, T: np.ndarray) -> np.ndarray:
         """This camera's ``T_cam_lidar (..., 4, 4)`` under the unknown ``T (..., 4, 4)``:
@@ -231,11 +252,21 @@ class Sequence(abc.ABC, SequenceABC):
         return iter(())
 
     def _check_image_size(self, i: int, image: np.ndarray, where: str | Path) -> None:
-        """Refuse an image whose size differs from the first one read from this sequence: every
-        stage (maps summed over a sequence, batches, one ``K``) needs one size."""
+        """Refuse an image whose size differs from the first one read from this sequence (every
+        stage, maps summed over a sequence, batches, one ``K``, needs one size), or the first one
+        where it differs from the size its calibration states (its ``K`` is for that size)."""
         size = (int(image.shape[0]), int(image.shape[1]))
         first = getattr(self, "_first_image_size", None)
         if first is None:
+            expected = self.calibration.image_size if self.calibration is not None else None
+            if expected is not None and size != expected:
+                source = self.calibration.source or "its file"
+                raise DataError(
+                    where,
+                    f"image is {size[1]}x{size[0]} but the calibration ({source}) is for "
+                    f"{expected[1]}x{expected[0]} (W x H): images resized or cropped, or the "
+                    "calibration of another camera",
+                )
             self._first_image_size = (size, i)
             return
         (H, W), j = first

@@ -460,10 +460,14 @@ def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+INTERNAL_ERROR = 3  # not 1: `check` exits 1 when it finds a miscalibration
+
+
 def main() -> None:
     """Console entry point: an error supportnet raises on purpose (data, config, numerical) and
     an operating-system error on a named file end in one line on stderr and exit code 2
-    (``--debug``: the traceback); Ctrl-C and SIGTERM end with code 130 and leave nothing behind."""
+    (``--debug``: the traceback); any other exception is a bug of supportnet's, one line and
+    exit code 3; Ctrl-C and SIGTERM end with code 130 and leave nothing behind."""
     import os
     import signal
 
@@ -477,13 +481,19 @@ def main() -> None:
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
         _fail(exc, f"{where}{exc.strerror or exc}")
+    except Exception as exc:  # a mistake of ours, not the user's: say so, keep 1 for `check`
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        message = f"internal error, {type(exc).__name__}" + (f": {first}" if first else "")
+        _fail(
+            exc, f"{message} (a bug of supportnet's: --debug shows where; please report it)", INTERNAL_ERROR
+        )
 
 
-def _fail(exc: BaseException, message: str) -> None:
+def _fail(exc: BaseException, message: str, code: int = 2) -> None:
     if _debug["on"]:
         raise exc
     print(f"supportnet: error: {message}", file=sys.stderr)
-    sys.exit(2)
+    sys.exit(code)
 
 
 if __name__ == "__main__":

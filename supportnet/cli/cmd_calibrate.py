@@ -38,7 +38,7 @@ from calib.projection import project_scan
 from calib.refine.passes import CalibrateConfig
 from calib.results import SCHEMA_VERSION, CalibrationResult
 from calib.support.map_files import check_maps_fingerprint
-from calib.verify import CheckResult, check_extrinsic, inverse_hint
+from calib.verify import CheckResult, OutOfView, check_extrinsic, inverse_hint
 from supportnet.cli.cmd_check import RigCamera, check_line, open_rig, rig_cameras
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, progress_bar, resolved_config, write_json
@@ -159,6 +159,9 @@ def _markdown(result: dict) -> str:
             + _check_line(result["check"], stage1_helps=rig is None and result["init"] != "stage1"),
         ]
     return "\n".join(lines) + "\n"
+
+
+DROP_IN_RESULT = ("schema_version", "exit_code", "T_cam_lidar")  # result.json has its own
 
 
 def _check_summary(result: CheckResult) -> dict:
@@ -306,7 +309,10 @@ def run_calibrate(
     checked = None
     if check:
         with console.status(f"Checking the answer on {len(frames)} frame(s) (no ground truth)"):
-            checked = _check_summary(check_extrinsic(frames, first.T_cam_lidar, seed=seed))
+            try:
+                checked = _check_summary(check_extrinsic(frames, first.T_cam_lidar, seed=seed))
+            except OutOfView as nothing_seen:  # an answer that ran off: bad, reported so
+                checked = {k: v for k, v in nothing_seen.to_dict().items() if k not in DROP_IN_RESULT}
     by_support = {}
     for name, done in results.items():
         run_dicts = [{"run": k, **r.to_dict()} for k, r in enumerate(done)]

@@ -28,7 +28,7 @@ from calib.data.types import Frame
 from calib.data.types import Sequence as DataSequence
 from calib.pipeline import select_frames
 from calib.projection import project_scan
-from calib.verify import CheckConfig, CheckResult, check_extrinsic
+from calib.verify import CheckConfig, CheckResult, OutOfView, check_extrinsic
 from calib.yaml_io import read_yaml, validate
 from supportnet.cli.console import make_console
 from supportnet.cli.output_dir import atomic_output, claim_output, resolved_config, write_json
@@ -141,7 +141,10 @@ def check_line(check: dict) -> str:
     """One line of a check's answer, from :meth:`CheckResult.to_dict` (or a dict with its
     ``verdict``, ``suggested_correction``, ``significance``, ``peak_share``, ``peak_shell_deg``
     and ``detectable_error``; ``search_at_bound`` and ``inverse_hint`` where present); a ``good``
-    on data that cannot confirm it says so."""
+    on data that cannot confirm it says so; an extrinsic that puts no point into the image
+    (:class:`~calib.verify.OutOfView`) is its reason."""
+    if "suggested_correction" not in check:
+        return f"{check['verdict']}: {check['reasons'][0]}"
     c, d = check["suggested_correction"], check["detectable_error"]
     bound = " (the search's bound: the error may be larger)" if check.get("search_at_bound") else ""
     line = (
@@ -235,6 +238,18 @@ def _markdown(output: dict) -> str:
     return "\n".join(lines) + ".\n"
 
 
+def _markdown_out_of_view(output: dict) -> str:
+    """``check.md`` of an extrinsic that puts no point into the image: no score, no correction."""
+    where = f" sequence {output['sequence']}" if output["sequence"] else ""
+    return (
+        f"# supportnet check: {output['verdict']}\n\nData `{output['data']}`{where}, extrinsic "
+        f"`{output['extrinsic']}`, {len(output['frame_indices'])} frame(s).\n\n"
+        + "".join(f"- {r}\n" for r in output["reasons"])
+        + f"\nExit code {output['exit_code']}. No score, correction or overlay: the scans show "
+        "nothing in the image under this extrinsic.\n"
+    )
+
+
 def _calibrated_elsewhere(
     extrinsic: Path, data: Path, sequence: str | None, camera: str | None
 ) -> str | None:
@@ -292,7 +307,10 @@ def run_check(
             picks = [int(i) for i in select_frames(len(seq), config.frames)]
             frames = [seq[i] for i in picks]
         with console.status(f"Checking on {len(frames)} frame(s)"):
-            result = check_extrinsic(frames, T, config)
+            try:
+                result = check_extrinsic(frames, T, config)
+            except OutOfView as nothing_seen:  # a miscalibration found, before any score
+                result = nothing_seen
         output = {
             **result.to_dict(),
             "data": str(data),
@@ -303,14 +321,18 @@ def run_check(
             "rig": [c.to_dict() for c in members] or None,
         }
         write_json(tmp / "check.json", output)
-        (tmp / "check.md").write_text(_markdown(output))
+        (tmp / "check.md").write_text(
+            _markdown(output) if "score" in output else _markdown_out_of_view(output)
+        )
         (tmp / "config.yaml").write_text(resolved_config(config))
-        write_image(tmp / "overlay.png", _overlay(frames[0], result))
+        if isinstance(result, CheckResult):
+            write_image(tmp / "overlay.png", _overlay(frames[0], result))
     if (other := _calibrated_elsewhere(extrinsic, data, sequence, camera)) is not None:
         console.print(other, markup=False, highlight=False, soft_wrap=True)
-    note = weak_data_note(output)
+    note = weak_data_note(output) if "detectable_error" in output else None
     console.print(
-        f"{check_line(output)}; {len(frames)} frame(s) in {result.runtime_s:.1f} s"
+        f"{check_line(output)}; {len(frames)} frame(s)"
+        + (f" in {result.runtime_s:.1f} s" if isinstance(result, CheckResult) else "")
         + (f". Note: {note}" if note else ""),
         markup=False,
         highlight=False,

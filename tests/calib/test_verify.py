@@ -18,6 +18,7 @@ from calib.verify import (
     AXES,
     CHECK_SCHEMA_VERSION,
     CheckConfig,
+    OutOfView,
     check_extrinsic,
     inverse_hint,
 )
@@ -136,6 +137,23 @@ def test_refusals(small_urban):
         check_extrinsic(empty, small_urban[0].calibration.T_cam_lidar)
 
 
+def test_images_without_edges_are_refused_not_called_good(small_urban):
+    """A lens cap (black), a dark noisy frame or an overexposed one shows nothing to align: the
+    check must not read that as a good extrinsic; one frame with edges among them is enough."""
+    from dataclasses import replace
+
+    T = small_urban[0].calibration.T_cam_lidar
+    rng = np.random.default_rng(0)
+    shape = small_urban[0].image.shape
+    dark = np.clip(rng.normal(5, 2, shape), 0, 255).astype(np.uint8)
+    for image in (np.zeros(shape, np.uint8), dark, np.full(shape, 255, np.uint8)):
+        flat = [replace(f, image=image) for f in small_urban]
+        with pytest.raises(DataError, match="images: none of the .* images shows edges"):
+            check_extrinsic(flat, T)
+    mixed = [replace(small_urban[0], image=dark), *small_urban[1:]]
+    assert check_extrinsic(mixed, T).verdict == "good"
+
+
 def test_the_inverse_given_for_the_extrinsic_is_named(small_urban):
     """``T_lidar_cam`` given where ``T_cam_lidar`` belongs (the convention mistake): not good, and
     the result says its inverse aligns far better; the reference itself gets no such line; an
@@ -149,8 +167,11 @@ def test_the_inverse_given_for_the_extrinsic_is_named(small_urban):
     assert check_extrinsic(small_urban, T).inverse_hint is None
     aside = T.copy()
     aside[0, 3] += 1000.0  # the camera a kilometre to the side: no point in its image
-    with pytest.raises(DataError, match=r"puts 0\.00% of the scans' points into the image"):
+    with pytest.raises(OutOfView, match=r"puts 0\.00% of the scans' points into the image") as caught:
         check_extrinsic(small_urban, aside)
+    assert "1000 m long: given in millimetres?" in str(caught.value)
+    found = caught.value.to_dict()
+    assert found["verdict"] == "bad" and found["exit_code"] == 1 and found["view_share"] == 0.0
 
 
 @pytest.mark.realdata

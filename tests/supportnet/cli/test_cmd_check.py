@@ -82,6 +82,25 @@ def test_two_degrees_off_exits_1_after_writing_everything(world, tmp_path):
         assert (out / "overlay.png").is_file() and (out / "check.md").is_file()
 
 
+def test_an_extrinsic_that_sees_nothing_is_a_miscalibration_exit_1(world, tmp_path):
+    """The identity (a URDF's default) or a translation in millimetres puts no point into the
+    image: `bad` with exit code 1 and check.json saying why, not bad input."""
+    data, files = world
+    T = np.loadtxt(files / "reference.txt")
+    T[:3, 3] *= 1000.0
+    np.savetxt(tmp_path / "mm.txt", T)
+    np.savetxt(tmp_path / "identity.txt", np.eye(4))
+    for name, says in (("identity.txt", "puts 0.00%"), ("mm.txt", "m long: given in millimetres?")):
+        out = tmp_path / f"out_{name}"
+        result = run_cli("--data", data, "--sequence", "00", "--extrinsic", tmp_path / name, "--out", out)
+        assert result.returncode == 1, result.stderr
+        stored = strict_json(out / "check.json")
+        assert stored["verdict"] == "bad" and stored["exit_code"] == 1 and says in stored["reasons"][0]
+        assert "bad: the extrinsic puts" in result.stderr and "Traceback" not in result.stderr
+        assert (out / "check.md").read_text().startswith("# supportnet check: bad")
+        assert not (out / "overlay.png").exists()
+
+
 def test_bad_input_is_one_line_and_exit_2(world, tmp_path):
     data, files = world
     result = run_cli(

@@ -470,3 +470,17 @@ def test_off_a_terminal_progress_is_lines(monkeypatch):
     ]
     screen = run(Console(file=io.StringIO(), width=120, force_terminal=True))
     assert not any(line.startswith("calibrate: 1/3") for line in screen)
+
+
+def test_an_unexpected_exception_is_one_line_and_exit_code_3_not_checks_1(tmp_path, capsys, monkeypatch):
+    """A bug of ours must not read as `check`'s "miscalibration found" (1) nor print a traceback."""
+    import supportnet.cli.cmd_info
+
+    def broken(*args, **kwargs):
+        raise KeyError("a bug\nwith a second line")
+
+    monkeypatch.setattr(supportnet.cli.cmd_info, "info", broken)
+    code, err = cli(capsys, "info", tmp_path)
+    assert code == 3
+    line = one_line(err)
+    assert line.startswith("supportnet: error: internal error, KeyError: 'a bug") and "--debug" in line
