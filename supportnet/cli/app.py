@@ -317,10 +317,11 @@ def calibrate(
         raise ConfigError(
             "--runs", "--online calibrates one stream from one start; run it again with another --seed"
         )
+    rig_option = "--rig-camera" if rig_camera else "--rig"  # the one given, in the message
     if online and (rig or rig_camera):
-        raise ConfigError("--rig", "--online calibrates one camera; leave --rig / --rig-camera out")
+        raise ConfigError(rig_option, "--online calibrates one camera; leave --rig / --rig-camera out")
     if time_offset is not None and (rig or rig_camera):
-        raise ConfigError("--rig", "the time offset is modelled for one camera; leave --time-offset out")
+        raise ConfigError(rig_option, "the time offset is modelled for one camera; leave --time-offset out")
     cfg = load_calibrate_config(config)
     if time_offset is not None:
         cfg = cfg.model_copy(update={"time_offset": time_offset_setting(time_offset, cfg.time_offset)})

@@ -484,3 +484,10 @@ def test_an_unexpected_exception_is_one_line_and_exit_code_3_not_checks_1(tmp_pa
     assert code == 3
     line = one_line(err)
     assert line.startswith("supportnet: error: internal error, KeyError: 'a bug") and "--debug" in line
+
+
+def test_a_rig_conflict_names_the_rig_option_given(tmp_path, capsys):
+    for given in (["--rig-camera", "CAM_BACK"], ["--rig", str(tmp_path)]):
+        for other in (["--time-offset", "off"], ["--online"]):
+            code, err = cli(capsys, "calibrate", "--data", tmp_path, *given, *other, "--out", tmp_path / "o")
+            assert code == 2 and one_line(err).startswith(f"supportnet: error: {given[0]}:"), err
