@@ -10,6 +10,7 @@ from typing import Annotated
 
 import typer
 
+from calib.errors import ConfigError
 from supportnet.cli.options import Overwrite
 
 __all__ = ["register"]
@@ -30,9 +31,32 @@ Precision = Annotated[
 def _with_trainer(
     overrides: list[str] | None, accelerator: str | None, devices: str | None, precision: str | None
 ) -> list[str]:
-    """The ``key.sub=value`` overrides with the trainer flags after them (flags win)."""
+    """The ``key.sub=value`` overrides with the trainer flags after them (flags win), each flag
+    checked first (:class:`ConfigError` naming it: ``--accelerator tpu``, ``--devices abc``)."""
+    from train.train_config import accelerator_value, devices_value, precision_value
+
     flags = {"accelerator": accelerator, "devices": devices, "precision": precision}
+    checks = {"accelerator": accelerator_value, "devices": devices_value, "precision": precision_value}
+    for key, value in flags.items():
+        if value is not None:
+            try:
+                checks[key](value)
+            except ValueError as exc:
+                raise ConfigError(f"--{key}", f"{exc} (got {value!r})") from None
     return [*(overrides or []), *(f"trainer.{k}={v}" for k, v in flags.items() if v is not None)]
+
+
+def _checked_here(config, flags: dict[str, str | None]):
+    """``config`` if this machine can run its trainer settings, else :class:`ConfigError` naming
+    the flag (or the ``trainer.`` key of the config or an override), before any data is read or
+    any training starts."""
+    from train.train_config import trainer_problem_here
+
+    found = trainer_problem_here(config.trainer)
+    if found is None:
+        return config
+    field, problem = found
+    raise ConfigError(f"--{field}" if flags.get(field) is not None else f"trainer.{field}", problem)
 
 
 def train(
@@ -52,7 +76,9 @@ def train(
     from train.fit import run_train
     from train.train_config import load_train_config
 
-    run_train(load_train_config(config, _with_trainer(overrides, accelerator, devices, precision)), overwrite)
+    flags = {"accelerator": accelerator, "devices": devices, "precision": precision}
+    loaded = load_train_config(config, _with_trainer(overrides, accelerator, devices, precision))
+    run_train(_checked_here(loaded, flags), overwrite)
 
 
 def train_flow(
@@ -73,8 +99,11 @@ def train_flow(
     from train.fit import run_train_flow
     from train.train_config import FlowTrainConfig, load_train_config
 
-    overrides = _with_trainer(overrides, accelerator, devices, precision)
-    run_train_flow(load_train_config(config, overrides, FlowTrainConfig), overwrite)
+    flags = {"accelerator": accelerator, "devices": devices, "precision": precision}
+    loaded = load_train_config(
+        config, _with_trainer(overrides, accelerator, devices, precision), FlowTrainConfig
+    )
+    run_train_flow(_checked_here(loaded, flags), overwrite)
 
 
 def register(app: typer.Typer) -> None:

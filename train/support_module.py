@@ -86,8 +86,8 @@ class SupportModule(L.LightningModule):
         logits = self(batch["image"])
         loss = weighted_bce(logits, batch["target"], batch["weight"])
         self.log("val/loss", loss, on_epoch=True, sync_dist=True)
-        pred, target, weight = (
-            t.flatten().cpu().numpy() for t in (logits.sigmoid(), batch["target"], batch["weight"])
+        pred, target, weight = (  # float32 for numpy: under bf16-mixed the logits are bfloat16
+            t.flatten().float().cpu().numpy() for t in (logits.sigmoid(), batch["target"], batch["weight"])
         )
         keep = np.flatnonzero(weight > 0)
         keep = np.random.default_rng(batch_idx).permutation(keep)[:VAL_PIXELS_PER_FRAME]

@@ -3,11 +3,12 @@ matcher): training configs, validated (a typo fails loudly)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveInt
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveInt, field_validator
 
 from calib.errors import ConfigError
 from calib.seeds import SEED_LIMIT
@@ -15,7 +16,64 @@ from calib.yaml_io import read_yaml, validate
 from supportnet.nets.flow_net import FlowConfig
 from supportnet.nets.support_unet import ModelConfig
 
-__all__ = ["FlowTrainConfig", "TrainConfig", "load_train_config"]
+__all__ = [
+    "ACCELERATORS",
+    "PRECISIONS",
+    "FlowTrainConfig",
+    "TrainConfig",
+    "accelerator_value",
+    "devices_value",
+    "load_train_config",
+    "precision_value",
+    "trainer_problem_here",
+]
+
+ACCELERATORS = ("auto", "cpu", "gpu")
+"""``trainer.accelerator`` (``--accelerator``): auto takes a GPU where there is one."""
+
+PRECISIONS = {"32-true": "32-true", "16-mixed": "16-mixed", "bf16-mixed": "bf16-mixed"}
+PRECISIONS.update({"32": "32-true", "16": "16-mixed", "bf16": "bf16-mixed"})
+"""``trainer.precision`` (``--precision``) the training modules support → Lightning's name:
+full precision, or fp16 / bf16 mixed precision (Lightning's short aliases taken too; on a CPU
+Lightning runs 16-mixed as bf16-mixed). 64-true, 16-true, bf16-true and transformer-engine are
+refused: the networks and their losses are not written for those."""
+
+
+def accelerator_value(value: object) -> str:
+    """``value`` if it is one of :data:`ACCELERATORS`, else ``ValueError`` saying which are."""
+    if not isinstance(value, str) or value not in ACCELERATORS:
+        raise ValueError(f"must be one of {', '.join(ACCELERATORS)}")
+    return value
+
+
+def devices_value(value: object) -> int | str:
+    """``trainer.devices`` (``--devices``) as Lightning takes it: a count (``4``; ``-1``: all),
+    ``auto``, or a comma-separated list of GPU indices (``0,1``). ``ValueError`` otherwise."""
+    problem = "must be a count (1, 2, ...), -1 (all), auto, or GPU indices like 0,1"
+    if isinstance(value, bool) or not isinstance(value, int | str):
+        raise ValueError(problem)
+    text = str(value).strip()
+    if text == "auto":
+        return text
+    if re.fullmatch(r"-?\d+", text):
+        count = int(text)
+        if count == -1 or count >= 1:
+            return count
+        raise ValueError(problem)
+    if re.fullmatch(r"\d+(\s*,\s*\d+)*\s*,?", text):
+        indices = [int(v) for v in text.split(",") if v.strip()]
+        if len(set(indices)) == len(indices):
+            return ",".join(map(str, indices)) + ("," if len(indices) == 1 else "")
+    raise ValueError(problem)
+
+
+def precision_value(value: object) -> str:
+    """Lightning's name of a precision in :data:`PRECISIONS`, else ``ValueError`` listing them."""
+    text = str(value).strip() if isinstance(value, int | str) and not isinstance(value, bool) else None
+    if text not in PRECISIONS:
+        accepted = ", ".join(PRECISIONS)
+        raise ValueError(f"must be one of {accepted}")
+    return PRECISIONS[text]
 
 
 class _Group(BaseModel):
@@ -78,10 +136,10 @@ class TrainerConfig(_Group):
     """Passed to ``lightning.Trainer``: ``accelerator: gpu, devices: 4, strategy: ddp`` trains on
     four GPUs with the same file; ``auto`` takes a GPU where there is one, else the CPU."""
 
-    accelerator: str = "auto"
-    devices: int | str = 1
+    accelerator: str = Field("auto", description="auto, cpu or gpu")
+    devices: int | str = Field(1, description="a count, -1 (all), auto, or GPU indices like 0,1")
     strategy: str = "auto"
-    precision: str = "32-true"
+    precision: str = Field("32-true", description="32-true, 16-mixed or bf16-mixed")
     max_epochs: int = Field(24, ge=1)
     max_time_min: float = Field(18.0, gt=0, description="stop training after this many minutes")
     patience: int = Field(8, ge=1, description="early stopping on the validation metric")
@@ -89,6 +147,41 @@ class TrainerConfig(_Group):
     log_every_n_steps: int = Field(10, ge=1)
     threads: int = Field(0, ge=0, description="torch CPU threads (0: torch's default)")
     fast_dev_run: bool = False
+
+    _accelerator = field_validator("accelerator", mode="before")(accelerator_value)
+    _devices = field_validator("devices", mode="before")(devices_value)
+    _precision = field_validator("precision", mode="before")(precision_value)
+
+
+def trainer_problem_here(trainer: TrainerConfig) -> tuple[str, str] | None:
+    """``(field, problem)`` where this machine cannot run ``trainer`` (a GPU asked for where
+    there is none, GPU indices it does not have, bf16 on a GPU without it), else ``None``:
+    checked before any training starts, not found by Lightning after the data is loaded."""
+    import torch
+
+    cuda = torch.cuda.is_available()
+    count = torch.cuda.device_count() if cuda else 0
+    if trainer.accelerator == "gpu" and not cuda:
+        return (
+            "accelerator",
+            "gpu: this machine has no CUDA GPU (torch.cuda.is_available() is False); use auto or cpu",
+        )
+    on_gpu = trainer.accelerator == "gpu" or (trainer.accelerator == "auto" and cuda)
+    devices = trainer.devices
+    if isinstance(devices, str) and devices != "auto":
+        if not on_gpu:
+            return (
+                "devices",
+                f"{devices}: GPU indices need a GPU and this run is on the CPU; give a count (e.g. 1)",
+            )
+        missing = [i for i in (int(v) for v in devices.split(",") if v) if i >= count]
+        if missing:
+            return "devices", f"{devices}: this machine has {count} GPU(s), indices 0 to {count - 1}"
+    if isinstance(devices, int) and on_gpu and devices > count:
+        return "devices", f"{devices}: this machine has {count} GPU(s)"
+    if trainer.precision == "bf16-mixed" and on_gpu and not torch.cuda.is_bf16_supported():
+        return "precision", "bf16-mixed: this GPU has no bfloat16; use 16-mixed or 32-true"
+    return None
 
 
 class TrainConfig(_Group):
@@ -190,5 +283,10 @@ def load_train_config(
         key, sep, text = item.partition("=")
         if not sep or not key:
             raise ConfigError("override", f"{item!r} is not key.sub=value")
-        _set(data, key.strip(), yaml.safe_load(text))
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+            raise ConfigError("override", f"{item!r}: the value is not YAML ({problem})") from None
+        _set(data, key.strip(), value)
     return validate(schema, data, path)

@@ -5,7 +5,16 @@ Accepted:
 - a JSON object with the key ``T_cam_lidar``: a 4x4 (or 3x4) nested list, as ``supportnet
   calibrate`` writes in ``result.json``;
 - a text file of 12 or 16 numbers, row-major ``T_cam_lidar`` (``[R | t]`` or the whole 4x4),
-  whitespace- or comma-separated, over any number of lines; ``#`` starts a comment.
+  whitespace- or comma-separated, over any number of lines; ``#`` (or MATLAB's ``%``) starts a
+  comment. numpy- and MATLAB-style matrices are read too: brackets (and ``array(...)``, a leading
+  ``T =``) are dropped, commas separate numbers and semicolons separate rows
+  (``[[1,0,0,0],[0,1,0,0],...]``, ``1,0,0,0;0,1,0,0;...``);
+- a KITTI calibration file: a raw drive's ``calib_velo_to_cam.txt`` (``R:`` and ``T:`` lines give
+  ``T_cam_lidar = [R | T]``, LiDAR to the unrectified camera 0), an odometry ``calib.txt``
+  (``Tr:``, LiDAR to the rectified camera 0) or an object split's calibration
+  (``Tr_velo_to_cam:``). Any other ``key: values`` file is refused with the lines it needs.
+
+A UTF-8 byte-order mark at the start is ignored.
 
 Refused, each with one line naming the file: a file that does not parse, rows of different
 lengths, a count other than 12 or 16, NaN or infinite values, a last row other than
@@ -17,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -68,19 +78,94 @@ def _from_json(path: Path, text: str) -> list[list[float]]:
         for v in r:
             if isinstance(v, bool) or not isinstance(v, int | float):
                 raise DataError(path, f"'T_cam_lidar' holds {v!r}, not a number")
+            try:
+                float(v)
+            except OverflowError:  # an integer of hundreds of digits
+                digits = len(str(abs(v)))
+                raise DataError(
+                    path, f"'T_cam_lidar' holds a {digits}-digit integer, too large for a number"
+                ) from None
     return [[float(v) for v in r] for r in rows]
 
 
-def _from_text(path: Path, text: str) -> list[list[float]]:
-    rows = []
+_KEY_LINE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*:(.*)$")
+"""A ``key: values`` line of a KITTI calibration file."""
+
+_ASSIGNMENT = re.compile(r"^\s*[A-Za-z_][A-Za-z0-9_.]*\s*=\s*(?=[\[(a-z])")
+"""A leading ``T = `` (MATLAB, Python) before a bracketed matrix."""
+
+_ARRAY = re.compile(r"\b(?:np\.|numpy\.)?array\s*\(|\bdtype\s*=\s*[\w.]+|[\[\]()]")
+"""numpy's ``array(``, ``dtype=...`` and brackets: dropped from a numpy- or MATLAB-style matrix."""
+
+KITTI_LINES = (("Tr", 12), ("Tr_velo_to_cam", 12))
+"""KITTI calibration keys holding ``T_cam_lidar`` as 12 row-major numbers (odometry, object)."""
+
+
+def _strip_comment(line: str) -> str:
+    return re.split(r"[#%]", line, maxsplit=1)[0]
+
+
+def _from_kitti(path: Path, text: str) -> list[list[float]]:
+    """``T_cam_lidar`` from a KITTI ``key: values`` calibration file (``Tr:``,
+    ``Tr_velo_to_cam:``, or ``R:`` with ``T:``)."""
+    values: dict[str, str] = {}
     for number, line in enumerate(text.splitlines(), start=1):
-        line = line.split("#", 1)[0].replace(",", " ").strip()
-        if not line:
+        line = _strip_comment(line)
+        if not line.strip():
             continue
+        match = _KEY_LINE.match(line)
+        if match is None:
+            raise DataError(
+                path, f"line {number} is not 'key: values' like the other lines: {line.strip()[:60]!r}"
+            )
+        values[match.group(1)] = match.group(2)
+    keys = ", ".join(values)
+
+    def numbers(key: str, count: int) -> list[float]:
         try:
-            rows.append([float(v) for v in line.split()])
+            found = [float(v) for v in values[key].replace(",", " ").split()]
         except ValueError:
-            raise DataError(path, f"line {number} is not numbers: {line[:60]!r}") from None
+            raise DataError(path, f"the {key}: line is not numbers: {values[key].strip()[:60]!r}") from None
+        if len(found) != count:
+            raise DataError(path, f"the {key}: line holds {len(found)} numbers; expected {count}")
+        return found
+
+    hint = (
+        "give a KITTI raw drive's calib_velo_to_cam.txt (R: and T: lines), an odometry calib.txt "
+        "(Tr: line), or copy the LiDAR-to-camera line's 12 numbers into a text file"
+    )
+    if "imu" in path.name.lower() and "R" in values:
+        raise DataError(path, f"holds the IMU-to-LiDAR transform, not LiDAR-to-camera; {hint}")
+    for key, count in KITTI_LINES:
+        if key in values:
+            found = numbers(key, count)
+            return [found[i : i + 4] for i in range(0, 12, 4)]
+    if "R" in values and "T" in values:
+        R, t = numbers("R", 9), numbers("T", 3)
+        return [[*R[3 * i : 3 * i + 3], t[i]] for i in range(3)]
+    if "R" in values or "T" in values:
+        missing = "T:" if "R" in values else "R:"
+        raise DataError(path, f"looks like a KITTI calib_velo_to_cam.txt but has no {missing} line")
+    raise DataError(
+        path, f"is a 'key: values' calibration file without a LiDAR-to-camera line (has: {keys}); {hint}"
+    )
+
+
+def _from_text(path: Path, text: str) -> list[list[float]]:
+    lines = [_strip_comment(line) for line in text.splitlines()]
+    if any(_KEY_LINE.match(line) for line in lines):
+        return _from_kitti(path, text)
+    rows = []
+    for number, line in enumerate(lines, start=1):
+        line = _ARRAY.sub(" ", _ASSIGNMENT.sub("", line)).replace(",", " ")
+        for part in line.split(";"):
+            part = part.strip()
+            if not part:
+                continue
+            try:
+                rows.append([float(v) for v in part.split()])
+            except ValueError:
+                raise DataError(path, f"line {number} is not numbers: {part[:60]!r}") from None
     return rows
 
 
@@ -101,7 +186,7 @@ def read_extrinsic(path: Path | str) -> np.ndarray:
     if not path.is_file():
         raise DataError(path, "file not found" if not path.exists() else "not a regular file")
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise DataError(path, "is not a text file (not UTF-8)") from None
     is_json = path.suffix.lower() == ".json" or text.lstrip().startswith("{")

@@ -44,11 +44,35 @@ def true_extrinsics(data: Path, sequence: str | None) -> np.ndarray | None:
     meta = next((m for m in candidates if m.is_file()), None)
     if meta is None:
         return None
-    rows = json.loads(meta.read_text()).get("true_T_cam_lidar")
+    try:
+        value = json.loads(meta.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise DataError(meta, "is not a text file (not UTF-8)") from None
+    except ValueError as exc:
+        raise DataError(meta, f"is not valid JSON ({exc})") from None
+    if not isinstance(value, dict):
+        raise DataError(meta, f"must hold a JSON object, not a {type(value).__name__}")
+    rows = value.get("true_T_cam_lidar")
     if rows is None:
         return None
+    shape = "a list with one row of 12 numbers (3x4 [R | t]) per frame"
+    if not isinstance(rows, list) or not rows:
+        raise DataError(meta, f"'true_T_cam_lidar' must be {shape}")
+    for i, row in enumerate(rows):
+        if (
+            not isinstance(row, list)
+            or len(row) != 12
+            or any(isinstance(v, bool) or not isinstance(v, int | float) for v in row)
+        ):
+            raise DataError(meta, f"'true_T_cam_lidar' row {i} is not 12 numbers; expected {shape}")
+    try:
+        values = np.asarray(rows, np.float64)
+    except OverflowError:
+        values = np.full((1, 1), np.inf)
+    if not np.isfinite(values).all():
+        raise DataError(meta, "'true_T_cam_lidar' holds NaN, infinite or out-of-range values")
     T = np.tile(np.eye(4), (len(rows), 1, 1))
-    T[:, :3] = np.asarray(rows, np.float64).reshape(-1, 3, 4)
+    T[:, :3] = values.reshape(-1, 3, 4)
     return T
 
 
@@ -99,6 +123,10 @@ def run_online(
         T_file = T_file if T_file is not None else T_init
         if len(seq) < online.window:
             raise DataError(data, f"has {len(seq)} frames, fewer than one window ({online.window})")
+        if truth is not None and len(truth) < len(seq):
+            raise DataError(
+                data, f"meta.json's 'true_T_cam_lidar' has {len(truth)} rows for {len(seq)} frames"
+            )
         calibrator = OnlineCalibrator(T_init, support, matcher, config, T_file=T_file, seed=seed)
         windows = (len(seq) - online.window) // online.step + 1
         with progress_bar("online", console) as progress:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from rich.console import Console
 
+from calib.data import detect_layout
 from calib.data.rosbag import write_bag
 from calib.errors import ConfigError, DataError
 from calib.seeds import check_seed
@@ -50,6 +51,36 @@ def parse_drift(text: str | None) -> tuple[float, float]:
             "--drift", f"sizes must be 0 to {MAX_DRIFT[0]:g} cm and 0 to {MAX_DRIFT[1]:g}°, got {text!r}"
         )
     return cm, deg
+
+
+LAYOUT_WORDS = {
+    "rosbag": "a ROS bag",
+    "kitti_odometry": "a KITTI odometry sequence folder",
+    "kitti_raw": "a KITTI raw drive or date folder",
+    "kitti_object": "a KITTI object split",
+    "nuscenes": "a nuScenes root",
+    "custom": "a custom dataset folder",
+}
+"""How the one-line refusal names each layout of :func:`calib.data.detect_layout`."""
+
+
+def refuse_dataset_out(out: Path) -> None:
+    """Refuse an existing ``--out`` that holds a dataset other than a KITTI odometry root
+    (``sequences/``): synth writes ``sequences/`` and ``poses/`` into it. A new or empty folder,
+    any folder of no known layout and a KITTI odometry root (other sequences kept) are fine."""
+    if not out.is_dir():
+        return
+    try:
+        layout = detect_layout(out)
+    except (DataError, OSError):  # no known layout (or unreadable: claim_output says so)
+        return
+    if layout == "kitti_odometry" and (out / "sequences").is_dir():
+        return
+    raise DataError(
+        out,
+        f"--out is {LAYOUT_WORDS.get(layout, layout)}; synth would write sequences/ and poses/ into "
+        "that dataset: give a new or empty folder or a KITTI odometry root",
+    )
 
 
 def run_synth(
@@ -94,6 +125,7 @@ def run_synth(
     if fmt not in ("kitti", "bag"):
         raise DataError("--format", f"{fmt!r} is not kitti or bag")
     out = Path(out)
+    refuse_dataset_out(out)
     seq_dir, pose_file = out / "sequences" / sequence, out / "poses" / f"{sequence}.txt"
     if fmt == "bag":
         seq_dir = out / f"{sequence}_bag"

@@ -150,3 +150,32 @@ def test_one_cycle_factor_is_torchs_one_cycle():
         optimizer.step()
         scheduler.step()
     assert one_cycle_factor(1.0) == pytest.approx(1 / 25 / 1e4)
+
+
+def test_validation_under_bf16_autocast_scores_in_float32():
+    """``--precision bf16``: the logits come out bfloat16, which numpy cannot take (it was a
+    TypeError after the first training epoch)."""
+    torch.manual_seed(0)
+    module = SupportModule({"width": 4, "depth": 2}, {}, {}).eval()
+    image = torch.rand(2, 3, 32, 48)
+    batch = {"image": image, "target": torch.rand(2, 1, 32, 48), "weight": torch.ones(2, 1, 32, 48)}
+    with torch.no_grad():
+        plain = module(image).sigmoid().flatten().numpy()
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            assert module(image).dtype == torch.bfloat16
+            module.validation_step(batch, 0)
+    pred, target, weight = module._val[0]
+    assert module._val[0].dtype == np.float32 and module._val[0].shape == (3, 2 * 32 * 48)
+    order = np.random.default_rng(0).permutation(2 * 32 * 48)  # validation_step's subsample
+    np.testing.assert_allclose(pred, plain[order], atol=1e-2)  # bfloat16 holds ~3 digits
+    np.testing.assert_array_equal(target, batch["target"].flatten().numpy()[order])
+
+
+def test_bf16_fast_dev_run_trains_and_validates(tiny, tmp_path):
+    _, sources = tiny
+    overrides = ["trainer.fast_dev_run=true", "trainer.precision=bf16", "trainer.accelerator=cpu"]
+    config = load_train_config(_config_file(tmp_path, sources), overrides)
+    assert config.trainer.precision == "bf16-mixed"
+    summary = run_train(config)
+    assert np.isfinite(summary["final"]["val/loss"]) and -1 <= summary["final"]["val/pearson"] <= 1
+    assert (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()

@@ -188,3 +188,45 @@ def test_synth_writes_the_same_frames_as_a_ros_bag(tmp_path):
     assert np.allclose(true_extrinsics(bag, None), true_extrinsics(kitti.parent.parent, "00"))
     with pytest.raises(DataError, match="is not kitti or bag"):
         run_synth("urban", 3, 2, tmp_path / "x", "00", fmt="mcap")
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ("{not json", "is not valid JSON"),
+        ("[1, 2, 3]", "must hold a JSON object, not a list"),
+        ('{"true_T_cam_lidar": [[1, 0, 0]]}', "row 0 is not 12 numbers"),
+        ('{"true_T_cam_lidar": 5}', "'true_T_cam_lidar' must be a list"),
+        ('{"true_T_cam_lidar": [[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, "x", 0]]}', "row 0 is not 12 numbers"),
+        ('{"true_T_cam_lidar": [[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, NaN]]}', "NaN, infinite"),
+        ('{"true_T_cam_lidar": [[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 1' + "0" * 400 + "]]}", "out-of-range"),
+    ],
+)
+def test_a_broken_meta_json_is_one_line_naming_it(tmp_path, text, problem):
+    (tmp_path / "meta.json").write_text(text)
+    with pytest.raises(DataError, match="meta.json") as caught:
+        true_extrinsics(tmp_path, None)
+    assert problem in caught.value.problem
+    (tmp_path / "meta.json").write_text('{"world": "urban"}')  # no truth recorded: none
+    assert true_extrinsics(tmp_path, None) is None
+    (tmp_path / "meta.json").write_text('{"true_T_cam_lidar": [[1, 0, 0, 0.5, 0, 1, 0, 0, 0, 0, 1, 0]]}')
+    assert np.allclose(true_extrinsics(tmp_path, None)[0, :, 3], [0.5, 0, 0, 1])
+
+
+def test_calibrate_online_on_a_broken_meta_json_exits_2_with_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    from calib.data.kitti_odometry import write_kitti_odometry
+    from tests.conftest import make_frames
+
+    write_kitti_odometry(tmp_path / "d", "00", make_frames())
+    (tmp_path / "d" / "meta.json").write_text('{"true_T_cam_lidar": [[1, 2, 3]]')
+    args = ["calibrate", "--online", "--data", tmp_path / "d", "--out", tmp_path / "o"]
+    args += ["--support", "uniform", "--init", "perturb:0,0"]
+    result = subprocess.run(
+        [sys.executable, "-m", "supportnet", *map(str, args)], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 2
+    assert result.stderr.startswith("supportnet: error: ") and "meta.json: is not valid JSON" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
