@@ -27,7 +27,7 @@ def read_yaml(path: Path) -> dict:
     """
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(path, "file not found")
+        raise ConfigError(path, "is a folder, not a YAML file" if path.is_dir() else "file not found")
     raw = path.read_bytes()
     try:
         text = raw.decode("utf-8-sig")  # a byte-order mark is fine

@@ -44,6 +44,7 @@ def test_a_byte_order_mark_is_fine(tmp_path):
 
 def test_missing_unparsable_and_non_mapping_files_are_config_errors(tmp_path):
     refused(tmp_path / "absent.yaml", "file not found")
+    refused(tmp_path, "is a folder, not a YAML file")
     (tmp_path / "bad.yaml").write_text("a: [1, 2\n")
     refused(tmp_path / "bad.yaml", "not valid YAML")
     (tmp_path / "list.yaml").write_text("- 1\n- 2\n")
