@@ -241,7 +241,8 @@ class BagSequence(Sequence):
             self.reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             self.reader.open()
         except Exception as exc:  # rosbags raises several unrelated types for unreadable bags
-            raise DataError(self.path, f"not a readable ROS bag ({exc})") from None
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]  # YAML errors span lines
+            raise DataError(self.path, f"not a readable ROS bag ({first})") from None
         try:
             self._index(topics, max_gap, T_cam_lidar)
         except BaseException:

@@ -245,3 +245,11 @@ def test_kitti_raw_drive_with_frames_left_out_reads_stamps_by_number(tmp_path):
     with open_dataset(date) as seq:
         np.testing.assert_allclose(np.diff(seq.timestamps), [0.2], atol=1e-6)  # epoch seconds
         assert any("2 of 3 frames present" in n for n in seq.notes)
+
+
+def test_a_ros2_bag_whose_metadata_does_not_parse_is_one_line(tmp_path):
+    write_bag(tmp_path / "rec", make_frames(1))
+    (tmp_path / "rec" / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  version: [9\n  x: 1\n")
+    with pytest.raises(DataError, match="not a readable ROS bag") as caught:
+        open_dataset(tmp_path / "rec")
+    assert "\n" not in str(caught.value)
