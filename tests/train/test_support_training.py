@@ -152,6 +152,7 @@ def test_one_cycle_factor_is_torchs_one_cycle():
     assert one_cycle_factor(1.0) == pytest.approx(1 / 25 / 1e4)
 
 
+@pytest.mark.filterwarnings("ignore:You are trying to `self.log\\(\\)`")  # outside a Trainer on purpose
 def test_validation_under_bf16_autocast_scores_in_float32():
     """``--precision bf16``: the logits come out bfloat16, which numpy cannot take (it was a
     TypeError after the first training epoch)."""
