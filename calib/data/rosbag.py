@@ -469,7 +469,8 @@ def write_bag(
     model, D = distortion or ("plumb_bob", np.zeros(5))
 
     def header(t: float, frame_id: str):
-        stamp = types["builtin_interfaces/msg/Time"](sec=int(t), nanosec=int(round((t % 1) * 1e9)))
+        ns = int(round(t * 1e9))  # floor division: a stamp before 0 keeps nanosec in [0, 1e9)
+        stamp = types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
         extra = {"seq": 0} if ros_version == 1 else {}
         return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id, **extra)
 

@@ -209,7 +209,8 @@ class Synthesizer:
             "classes": {str(k): v for k, v in sorted(self.world.classes.items())},
             "rigid_classes": sorted(RIGID_CLASSES & set(self.world.classes)),
             "conventions": {
-                "times.txt": "camera exposure times; each scan's stamp is that minus camera_offset_s",
+                "times.txt": "camera exposure times; each scan's stamp is in times_lidar.txt (the "
+                "exposure minus the frame's camera offset, camera_offset_s plus its drift)",
                 "poses": "poses/NN.txt holds camera-0 poses at the LiDAR stamps (KITTI convention); "
                 "T_world_lidar = inv(Tr) @ pose @ Tr",
                 "point_times": "seconds from the scan stamp, 0 where the beam points forward",

@@ -107,7 +107,7 @@ def lidar_rays(lidar: LidarConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Returns:
         ``directions (B * A, 3)`` unit vectors in the LiDAR frame, ``ring (B * A,)`` beam index
         from the top beam down, and ``azimuth (B * A,)`` in radians, sweeping from +π to -π
-        (counter-clockwise seen from above, as a Velodyne reports them).
+        (clockwise seen from above, as a Velodyne turns: azimuth falls with time).
     """
     elevation = np.radians(np.linspace(lidar.elevation_max_deg, lidar.elevation_min_deg, lidar.beams))
     steps = int(round(360.0 / lidar.azimuth_step_deg))

@@ -253,3 +253,14 @@ def test_a_ros2_bag_whose_metadata_does_not_parse_is_one_line(tmp_path):
     with pytest.raises(DataError, match="not a readable ROS bag") as caught:
         open_dataset(tmp_path / "rec")
     assert "\n" not in str(caught.value)
+
+
+def test_bag_stamps_before_zero_round_trip(tmp_path):
+    """A camera offset below zero puts frame 0's exposure before t = 0: sec -1, nanosec 0.96e9."""
+    frames = make_frames(2)
+    for i, f in enumerate(frames):
+        f.timestamp, f.lidar_timestamp = -0.04 + 0.1 * i, 0.1 * i
+    write_bag(tmp_path / "rec", frames)
+    with open_dataset(tmp_path / "rec") as seq:
+        np.testing.assert_allclose(seq.timestamps, [-0.04, 0.06], atol=1e-9)
+        assert seq[0].lidar_timestamp == pytest.approx(0.0, abs=1e-9)
