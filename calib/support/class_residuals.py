@@ -69,8 +69,15 @@ def point_classes(frame: Frame, corr: Correspondences, source: ClassSource) -> n
     """``(N,)`` int class id of each correspondence (ids of :data:`EXG_CLASSES` for ``exg``)."""
     if source == "points":
         return np.asarray(frame.labels)[corr.index].astype(np.int64)
-    labels = frame.image_labels if source == "image" else excess_green_foliage(frame.image)
-    return pixel_lookup(np.asarray(labels), corr.uv).astype(np.int64)
+    labels = np.asarray(frame.image_labels if source == "image" else excess_green_foliage(frame.image))
+    if labels.shape[:2] != frame.image_size:
+        H, W = frame.image_size
+        raise DataError(
+            frame.name or f"frame {frame.index}",
+            f"image labels are {labels.shape[1]}x{labels.shape[0]} but the image is {W}x{H}: "
+            "resize them (nearest neighbour) to the image first",
+        )
+    return pixel_lookup(labels, corr.uv).astype(np.int64)
 
 
 @dataclass(frozen=True)

@@ -40,15 +40,17 @@ class PredictedSupport:
         self.name = name
         self.predictor = predictor
         self._remember = remember
-        self._maps: OrderedDict[tuple[int, str, int], np.ndarray] = OrderedDict()
+        # each entry holds its image: an id is reused only once its image is gone, so a frame
+        # built by a caller (index 0, no name) never meets another image's map
+        self._maps: OrderedDict[tuple[int, str, int], tuple[np.ndarray, np.ndarray]] = OrderedDict()
 
     def __call__(self, frame: Frame) -> np.ndarray:
         key = (frame.index, frame.name, id(frame.image))
-        if key not in self._maps:
-            self._maps[key] = predict_frame(self.predictor, frame)
+        if key not in self._maps or self._maps[key][0] is not frame.image:
+            self._maps[key] = (frame.image, predict_frame(self.predictor, frame))
             while len(self._maps) > self._remember:
                 self._maps.popitem(last=False)
-        return self._maps[key]
+        return self._maps[key][1]
 
 
 def model_image(contract: Contract, frame: Frame) -> np.ndarray:

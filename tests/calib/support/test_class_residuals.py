@@ -47,6 +47,17 @@ def test_point_classes_read_the_label_at_each_rounded_pixel():
     np.testing.assert_array_equal(point_classes(frame, corr, "points"), frame.labels[:3])
 
 
+def test_image_labels_of_another_size_are_refused_not_clipped():
+    """Masks at 640x640 for 624x188 images (SemanticBLT's masks are not its images' size): read at
+    the image's pixels they would clip every point right of column 639 to that column."""
+    frame = make_frames(1)[0]
+    frame.image_labels = np.zeros((640, 640), np.uint16)
+    uv = np.array([[10.0, 10.0]])
+    corr = Correspondences(np.arange(1), np.zeros((1, 3)), uv, uv, np.ones(1), frame.image_size)
+    with pytest.raises(DataError, match="image labels are 640x640 but the image is 624x188"):
+        point_classes(frame, corr, "image")
+
+
 def test_class_statistics_known_answer():
     acc = ClassResiduals()
     residual = np.array([[1.0, -2.0], [-3.0, 0.0], [0.5, 0.5], [0.0, -1.5], [2.0, 2.0]])
