@@ -71,6 +71,11 @@ class Stage1Config(BaseModel):
     )
 
 
+MAX_SEED_STD_S = 0.02
+"""Stage 1's δt seeds Stage 4 only where its std is at most this: Stage 4 comes back from about
+20 ms (README, "Time offset and deskewing": the table over offsets)."""
+
+
 @dataclass(frozen=True)
 class Stage1Result:
     """What Stage 1 found, with what it used.
@@ -109,8 +114,9 @@ class Stage1Result:
     @property
     def time_offset_s(self) -> float | None:
         """Stage 4's ``δt`` (camera exposure minus LiDAR stamp) as Stage 1 sees it: the stamps'
-        median difference less the camera stamps' lag; ``None`` where the lag is not determined."""
-        if self.stamp_offset is None or not np.isfinite(self.stamp_offset.std_s):
+        median difference less the camera stamps' lag; ``None`` where the lag is not determined to
+        :data:`MAX_SEED_STD_S` (a seed farther off than Stage 4 can come back from)."""
+        if self.stamp_offset is None or not self.stamp_offset.std_s <= MAX_SEED_STD_S:
             return None
         return float(np.median(self.camera_times - self.lidar_times) - self.stamp_offset.offset_s)
 
@@ -150,6 +156,9 @@ def initial_calibration(
         config.lidar.voxel_size_m,
     )
     seconds["lidar_odometry"] = time.perf_counter() - start
+    pose_times = lidar_times  # when each pose holds: KISS-ICP deskews a scan to its last point's time
+    if deskew:
+        pose_times = lidar_times + np.array([float(np.max(f.point_times)) for f in frames])
 
     say("visual odometry (OpenCV)")
     start = time.perf_counter()
@@ -161,11 +170,11 @@ def initial_calibration(
     say("time sync and hand–eye")
     start = time.perf_counter()
     ends = np.array([[camera_times[m.i], camera_times[m.j]] for m in motions])
-    at_camera, valid = interpolate_poses(lidar_times, lidar_poses, ends.ravel(), config.max_sync_gap_s)
+    at_camera, valid = interpolate_poses(pose_times, lidar_poses, ends.ravel(), config.max_sync_gap_s)
     at_camera, kept = at_camera.reshape(-1, 2, 4, 4), valid.reshape(-1, 2).all(axis=1)
     try:  # the clocks' offset from the rotation angles alone, before any extrinsic
         lag = stamp_offset(
-            lidar_times,
+            pose_times,
             lidar_poses,
             ends,
             np.stack([m.T[:3, :3] for m in motions]),
@@ -174,6 +183,13 @@ def initial_calibration(
     except ValueError as error:
         lag = None
         notes.append(f"no time offset from the motion: {error}")
+    if kept.sum() < 3:
+        period = float(np.median(np.diff(pose_times))) if len(pose_times) > 1 else float("nan")
+        raise UnobservableError(
+            f"{seq.name}: only {int(kept.sum())} camera motions lie between LiDAR scans at most "
+            f"{config.max_sync_gap_s:g} s apart (the scans come every {period:.3g} s): raise "
+            "max_sync_gap_s to about 1.5 scan periods, or give every scan"
+        )
     A = np.stack([m.T for m, k in zip(motions, kept, strict=True) if k])
     B = np.linalg.inv(at_camera[kept, 1]) @ at_camera[kept, 0]  # T_lidar_j_lidar_i
     calibration = hand_eye(A, B, config.hand_eye)

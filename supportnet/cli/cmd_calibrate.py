@@ -261,7 +261,8 @@ def run_calibrate(
             for weak in stage1.calibration.weak:
                 console.print(f"Stage 1 weak: {weak}", markup=False, highlight=False, soft_wrap=True)
             init_kind, init_arg = "file", stage1.T_cam_lidar
-            if stage1.time_offset_s is not None:  # Stage 4's δt starts where Stage 1's motion put it
+            # Stage 4's δt starts where Stage 1's motion put it, unless the user holds it (fixed:MS)
+            if stage1.time_offset_s is not None and config.time_offset.mode == "estimate":
                 config = config.model_copy(
                     update={
                         "time_offset": config.time_offset.model_copy(

@@ -274,3 +274,31 @@ def test_a_rig_uses_every_cameras_frame_of_enough_scans(still_vineyard, tmp_path
     np.testing.assert_allclose(named["T_cam_lidar"], out["T_cam_lidar"], atol=1e-12)
     assert [entry["camera"] for entry in named["rig"]] == [None, "2"]
     assert (tmp_path / "named" / "overlay_uniform_1_2.png").is_file()
+
+
+@pytest.mark.parametrize(("mode", "expected_s"), [("fixed", 0.012), ("estimate", 0.037)])
+def test_stage1_seeds_the_time_offset_only_where_it_is_estimated(
+    still_vineyard, tmp_path, monkeypatch, mode, expected_s
+):
+    """`--init stage1 --time-offset fixed:12` holds 12 ms: Stage 1's 37 ms seeds only an
+    estimated δt (it replaced the user's held value before)."""
+    from types import SimpleNamespace
+
+    import supportnet.cli.cmd_calibrate as cmd_calibrate
+
+    with open_dataset(still_vineyard, sequence="00") as seq:
+        T = seq.calibration.T_cam_lidar
+    stage1 = SimpleNamespace(T_cam_lidar=T, time_offset_s=0.037, calibration=SimpleNamespace(weak=[]))
+    monkeypatch.setattr(cmd_calibrate, "initial_calibration", lambda *a, **k: stage1)
+    held = []
+
+    def recording(self, seq, T_init, seed=0, motions=None, on_stage=None):
+        held.append((self.config.time_offset.mode, self.config.time_offset.initial_s))
+        raise KeyboardInterrupt  # what it was given is all this test asks
+
+    monkeypatch.setattr(Calibrator, "calibrate", recording)
+    timing = FAST.time_offset.model_copy(update={"mode": mode, "initial_s": 0.012})
+    config = FAST.model_copy(update={"time_offset": timing})
+    with pytest.raises(KeyboardInterrupt):
+        run_calibrate(still_vineyard, "00", "uniform", "stage1", tmp_path / "cal", config, check=False)
+    assert held == [(mode, expected_s)]
