@@ -10,7 +10,7 @@ from calib.data.kitti_object import is_kitti_object, read_kitti_object
 from calib.data.kitti_odometry import is_kitti_odometry, read_kitti_odometry
 from calib.data.kitti_raw import is_kitti_raw, read_kitti_raw
 from calib.data.nuscenes import is_nuscenes, read_nuscenes
-from calib.data.rosbag import BagSequence, BagTopics, is_bag
+from calib.data.rosbag import TOPIC_KEYS, BagSequence, BagTopics, is_bag
 from calib.data.types import Calibration, Frame, Sequence, refuse_sequence
 from calib.errors import DataError
 
@@ -43,15 +43,13 @@ def detect_layout(path: Path) -> str:
     raise DataError(path, f"unknown data layout; expected {_EXPECTED}")
 
 
-BAG_KEYS = {"image": "image", "cloud": "cloud", "info": "camera_info"}
-
-
 def bag_choice(path: Path, camera: str, topics: BagTopics, max_gap: float) -> tuple[BagTopics, float]:
-    """A bag's ``--camera``: its image topic, or ``key=value`` pairs of :data:`BAG_KEYS` and
-    ``max_gap_ms`` (the largest camera–LiDAR stamp difference of a pair)."""
+    """A bag's ``--camera``: its image topic, or ``key=value`` pairs of
+    :data:`~calib.data.rosbag.TOPIC_KEYS` and ``max_gap_ms`` (the largest camera–LiDAR stamp
+    difference of a pair)."""
     if "=" not in camera:
         return replace(topics, image=camera), max_gap
-    keys = ", ".join([*BAG_KEYS, "max_gap_ms"])
+    keys = ", ".join([*TOPIC_KEYS, "max_gap_ms"])
     for part in camera.split(","):
         key, sep, value = (s.strip() for s in part.partition("="))
         if not sep or not value:
@@ -63,8 +61,8 @@ def bag_choice(path: Path, camera: str, topics: BagTopics, max_gap: float) -> tu
                 max_gap = -1.0
             if not 0 < max_gap <= 10:
                 raise DataError(path, f"--camera max_gap_ms={value}: give milliseconds in (0, 10000]")
-        elif key in BAG_KEYS:
-            topics = replace(topics, **{BAG_KEYS[key]: value})
+        elif key in TOPIC_KEYS:
+            topics = replace(topics, **{TOPIC_KEYS[key]: value})
         else:
             raise DataError(path, f"--camera {camera!r}: unknown key {key!r} ({keys})")
     return topics, max_gap

@@ -60,6 +60,10 @@ class BagTopics:
     camera_info: str | None = None
 
 
+TOPIC_KEYS = {"image": "image", "cloud": "cloud", "info": "camera_info"}
+"""``--camera KEY=TOPIC`` keys and the :class:`BagTopics` field each sets."""
+
+
 def _stamp(msg: object) -> float:
     stamp = msg.header.stamp  # type: ignore[attr-defined]
     return stamp.sec + stamp.nanosec * 1e-9
@@ -139,7 +143,7 @@ def decode_cloud(msg: object, where: str) -> tuple[np.ndarray, np.ndarray | None
         }
     )
     rows = [data[r * row_step : r * row_step + width * step] for r in range(height)]
-    cloud = np.frombuffer(np.concatenate(rows).tobytes() if height > 1 else rows[0].tobytes(), dtype=dtype)
+    cloud = np.frombuffer(np.concatenate(rows).tobytes(), dtype=dtype)
     n = len(cloud)
     intensity = next((f for f in ("intensity", "reflectivity", "i") if f in names), None)
     columns = [cloud["x"], cloud["y"], cloud["z"], cloud[intensity] if intensity else np.zeros(n)]
@@ -156,6 +160,7 @@ def decode_cloud(msg: object, where: str) -> tuple[np.ndarray, np.ndarray | None
 # start), Velodyne ``time`` (float s after the stamp); ``timestamp`` is absolute, in seconds
 # (Hesai, RoboSense) or nanoseconds (Livox's PointXYZRTLT), told apart by its size.
 _RELATIVE_TIMES = {"t": 1e-9, "time": 1.0}
+TIME_FIELDS = (*_RELATIVE_TIMES, "timestamp")
 _ABSOLUTE_SCALES = (1.0, 1e-3, 1e-6, 1e-9)  # s, ms, µs, ns
 SWEEP_LIMIT_S = 1.0  # per-point times farther from the stamp are not one sweep's
 
@@ -251,9 +256,11 @@ class BagSequence(Sequence):
 
     def _index(self, topics: BagTopics, max_gap: float, T_cam_lidar: np.ndarray | None) -> None:
         """Pick the topics, pair the stamps, read the calibration."""
-        self._image = self._pick(topics.image, IMAGE_TYPES, "image")
-        self._cloud = self._pick(topics.cloud, (CLOUD_TYPE,), "point cloud")
-        info_conn = self._pick(topics.camera_info, (INFO_TYPE,), "camera_info", near=self._image.topic)
+        self._image = self._pick(topics.image, IMAGE_TYPES, "image", "image")
+        self._cloud = self._pick(topics.cloud, (CLOUD_TYPE,), "point cloud", "cloud")
+        info_conn = self._pick(
+            topics.camera_info, (INFO_TYPE,), "camera_info", "info", near=self._image.topic
+        )
         info = self._first(info_conn)
         self.camera = self._image.topic
         image_stamps = self._stamps(self._image)
@@ -275,7 +282,7 @@ class BagSequence(Sequence):
         for times, connection in ((self.timestamps, self._image), (self._lidar_times, self._cloud)):
             self.problems += time_problems(times, f"{self.path} [{connection.topic}]", "header stamp")
         first_cloud = self._first(self._cloud)
-        time_fields = [f.name for f in first_cloud.fields if f.name in ("t", "time", "timestamp")]
+        time_fields = [f.name for f in first_cloud.fields if f.name in TIME_FIELDS]
         if time_fields and decode_cloud(first_cloud, f"{self.path} [{self._cloud.topic}]")[1] is None:
             self.notes.append(
                 f"the cloud's per-point times ({time_fields[0]}) do not fit one sweep about its stamp "
@@ -293,7 +300,9 @@ class BagSequence(Sequence):
                 )
         self.calibration = self._calibration(info, T_cam_lidar)
 
-    def _pick(self, topic: str | None, msgtypes: tuple[str, ...], what: str, near: str = ""):
+    def _pick(self, topic: str | None, msgtypes: tuple[str, ...], what: str, key: str, near: str = ""):
+        """The connection of ``topic``, else the only one of ``msgtypes`` (``near``: the one nearest
+        that topic's namespace); ``what`` names it in errors, ``key`` its ``--camera`` key."""
         connections = [c for c in self.reader.connections if c.msgtype in msgtypes]
         if topic is not None:
             chosen = [c for c in connections if c.topic == topic]
@@ -309,10 +318,7 @@ class BagSequence(Sequence):
             if len(beside) == 1:
                 topics = beside
         if len(topics) != 1:
-            key = {"image": "image", "point cloud": "cloud", "camera_info": "info"}[what]
-            pick = f"; pick one with --camera {key}=TOPIC" if topics else ""
-            if what == "image" and topics:
-                pick = "; pick one with --camera TOPIC"
+            pick = f"; pick one with --camera {'' if key == 'image' else key + '='}TOPIC" if topics else ""
             found = ", ".join(topics) or "none"
             raise DataError(self.path, f"found {len(topics)} {what} topics ({found}){pick}")
         return next(c for c in connections if c.topic == topics[0])

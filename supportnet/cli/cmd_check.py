@@ -320,19 +320,18 @@ def run_check(
             "frame_indices": picks,
             "rig": [c.to_dict() for c in members] or None,
         }
+        scored = isinstance(result, CheckResult)  # else OutOfView: nothing scored, no overlay
         write_json(tmp / "check.json", output)
-        (tmp / "check.md").write_text(
-            _markdown(output) if "score" in output else _markdown_out_of_view(output)
-        )
+        (tmp / "check.md").write_text(_markdown(output) if scored else _markdown_out_of_view(output))
         (tmp / "config.yaml").write_text(resolved_config(config))
-        if isinstance(result, CheckResult):
+        if scored:
             write_image(tmp / "overlay.png", _overlay(frames[0], result))
     if (other := _calibrated_elsewhere(extrinsic, data, sequence, camera)) is not None:
         console.print(other, markup=False, highlight=False, soft_wrap=True)
-    note = weak_data_note(output) if "detectable_error" in output else None
+    note = weak_data_note(output) if scored else None
     console.print(
         f"{check_line(output)}; {len(frames)} frame(s)"
-        + (f" in {result.runtime_s:.1f} s" if isinstance(result, CheckResult) else "")
+        + (f" in {result.runtime_s:.1f} s" if scored else "")
         + (f". Note: {note}" if note else ""),
         markup=False,
         highlight=False,

@@ -4,6 +4,7 @@ bare ``onnx`` = the shipped model). Each implements :class:`calib.support.source
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import numpy as np
 from calib.data.types import Frame
 from calib.errors import ConfigError
 from calib.match.correspondences import working_view
+from calib.match.edge_matcher import recall
 from calib.support.map_files import load_sequence_maps
 from calib.support.source import MapSupport, SupportSource, UniformSupport
 from supportnet.nets.contract import Contract
@@ -43,14 +45,14 @@ class PredictedSupport:
         # each entry holds its image: an id is reused only once its image is gone, so a frame
         # built by a caller (index 0, no name) never meets another image's map
         self._maps: OrderedDict[tuple[int, str, int], tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._lock = threading.Lock()
 
     def __call__(self, frame: Frame) -> np.ndarray:
+        def make() -> tuple[np.ndarray, np.ndarray]:
+            return frame.image, predict_frame(self.predictor, frame)
+
         key = (frame.index, frame.name, id(frame.image))
-        if key not in self._maps or self._maps[key][0] is not frame.image:
-            self._maps[key] = (frame.image, predict_frame(self.predictor, frame))
-            while len(self._maps) > self._remember:
-                self._maps.popitem(last=False)
-        return self._maps[key][1]
+        return recall(self._maps, key, make, self._lock, self._remember)[1]
 
 
 def model_image(contract: Contract, frame: Frame) -> np.ndarray:
